@@ -1,0 +1,127 @@
+"""The force terms an isolator model is built from: one registry, one formula each.
+
+Each kind of term is `coef * basis(z, ż, ...; shape)`: a coefficient that enters
+linearly (what appendix A's least squares solves for) times a basis function
+whose shape constants (α, β, …) enter nonlinearly. `basis` below is the only
+place a term's formula is written; the simulator kernel and the regressor
+builder of the identification both call it, so the two can never disagree.
+
+A kind may carry one internal state (hysteresis, fluid temperature): its rate
+is `state_rate`, integrated by the simulator alongside z and ż.
+
+To add a kind: give it a code and a branch in `basis` (and `state_rate` if it
+has state), and a `TermKind` entry in `KINDS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from numba import njit
+
+# codes used inside the compiled kernel
+LINEAR_SPRING = 0
+TANH_SPRING = 1
+LINEAR_DAMPER = 2
+TANH_DAMPER = 3
+COULOMB = 4
+PRELOAD = 5
+CUBIC_SPRING = 6
+QUADRATIC_DAMPER = 7
+FORCE_OFFSET = 8
+BOUC_WEN = 9
+
+MAX_SHAPE = 3  # shape constants per term in the kernel's parameter layout
+
+
+@njit(cache=True)
+def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
+          a: float, b: float, c: float) -> float:
+    """Basis function of a term kind, N per unit coefficient.
+
+    z, zd: relative displacement (m) and velocity (m/s); sz, szd: the sign of
+    each as the integrator holds it (±1, or 0 when at rest); s: the term's
+    internal state; a, b, c: shape constants in SI.
+    """
+    if kind == LINEAR_SPRING:
+        return z
+    if kind == TANH_SPRING:
+        return math.tanh(a * z)
+    if kind == LINEAR_DAMPER:
+        return zd
+    if kind == TANH_DAMPER:
+        return math.tanh(a * zd)
+    if kind == COULOMB:
+        return szd
+    if kind == PRELOAD:
+        return sz
+    if kind == CUBIC_SPRING:
+        return z * z * z
+    if kind == QUADRATIC_DAMPER:
+        return zd * abs(zd)
+    if kind == FORCE_OFFSET:
+        return 1.0
+    if kind == BOUC_WEN:
+        return s
+    return math.nan
+
+
+@njit(cache=True)
+def state_rate(kind: int, z: float, zd: float, s: float, coef: float,
+               a: float, b: float, c: float) -> float:
+    """Time derivative of a term's internal state (0 for stateless kinds)."""
+    if kind == BOUC_WEN:
+        # Bouc–Wen with n = 1: r' = ż − a|ż| r − b ż |r|  (r in m, a and b in 1/m)
+        return zd - a * abs(zd) * s - b * zd * abs(s)
+    return 0.0
+
+
+@dataclass(frozen=True)
+class TermKind:
+    """What a kind of term means, and the units of its numbers (SI)."""
+
+    name: str
+    code: int
+    formula: str
+    coef_unit: str
+    shape_names: tuple[str, ...] = ()
+    shape_units: tuple[str, ...] = ()
+    gated_by_dead_band: bool = False  # inactive for |z| <= δ, as the report's spring terms
+    switches_on: str = ""  # "z" or "zd": the basis jumps where that variable changes sign
+    has_state: bool = False
+    meaning: str = ""
+
+
+KINDS: dict[str, TermKind] = {
+    k.name: k
+    for k in (
+        TermKind("linear_spring", LINEAR_SPRING, "k z", "N/m", gated_by_dead_band=True,
+                 meaning="linear stiffness of the compressed fluid"),
+        TermKind("tanh_spring", TANH_SPRING, "k tanh(α z)", "N", ("alpha",), ("1/m",),
+                 gated_by_dead_band=True, meaning="softening spring (Eq 8)"),
+        TermKind("linear_damper", LINEAR_DAMPER, "c ż", "N/(m/s)",
+                 meaning="viscous damping, active everywhere including the dead band"),
+        TermKind("tanh_damper", TANH_DAMPER, "c tanh(β ż)", "N", ("beta",), ("s/m",),
+                 gated_by_dead_band=True, meaning="softening damping, orifice flow (Eq 9)"),
+        TermKind("coulomb", COULOMB, "c sgn(ż)", "N", switches_on="zd",
+                 meaning="dry friction of the seals"),
+        TermKind("preload", PRELOAD, "γ sgn(z)", "N", gated_by_dead_band=True, switches_on="z",
+                 meaning="fluid preload: a force step at the edge of the dead band"),
+        TermKind("cubic_spring", CUBIC_SPRING, "k z³", "N/m^3", gated_by_dead_band=True,
+                 meaning="hardening spring"),
+        TermKind("quadratic_damper", QUADRATIC_DAMPER, "c ż|ż|", "N/(m/s)^2",
+                 meaning="turbulent orifice flow"),
+        TermKind("force_offset", FORCE_OFFSET, "F₀", "N", meaning="constant force offset"),
+        TermKind("bouc_wen", BOUC_WEN, "k r, r' = ż − a|ż|r − b ż|r|", "N/m", ("a", "b"),
+                 ("1/m", "1/m"), has_state=True, meaning="rate-independent hysteresis"),
+    )
+}
+
+
+def kind(name: str) -> TermKind:
+    """The TermKind called `name`; KeyError lists the known kinds."""
+    try:
+        return KINDS[name]
+    except KeyError:
+        raise KeyError(f"unknown term kind {name!r} (known: {', '.join(KINDS)})") from None

@@ -1,0 +1,356 @@
+"""Compiled hybrid RK4 integrator of the isolator model (numba).
+
+State y = [z, ż, s_0 … s_{J-1}] (relative coordinates, one internal-state slot
+per term). Three discrete modes are carried alongside and held fixed within a
+step, so that RK4 always integrates a smooth right-hand side:
+
+- `stuck`: static friction holds (ż ≡ 0, ẍ = ü);
+- `outside`: |z| > δ, the gated terms act;
+- the signs sz, szd that sgn(z), sgn(ż) terms use.
+
+A mode changes only at an *event*: a step that ends with an event function
+below zero is redone to the event's time, found by Illinois regula falsi on
+the step length (each trial is a fresh RK4 step of the frozen-mode system), the
+mode switches there and the rest of the step follows. This keeps fourth-order
+convergence through dead-band entries, zero crossings and stick/slip, instead
+of the first order a grid-aligned switch would give.
+
+Base motion u(t) is a piecewise polynomial (scipy PPoly layout: `breaks` (K+1,),
+`coefs` (degree+1, K)), held constant outside its breaks; analytic profiles are
+exact in it and measured tables are a cubic spline.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from analysis.model.isolator import (N_GLOBAL, P_BREAKAWAY, P_DEAD_BAND, P_MASS,
+                                     P_STOP_VELOCITY, TERM_WIDTH)
+from analysis.model.terms import COULOMB, PRELOAD, basis, state_rate
+
+MAX_EVENTS_PER_STEP = 16
+ROOT_ITERATIONS = 60
+
+# event slots
+EV_BAND, EV_Z0, EV_ZD0, EV_STOP, EV_BREAKAWAY = range(5)
+N_EVENTS = 5
+
+
+@njit(cache=True)
+def base_motion(breaks, coefs, t):
+    """u, u̇, ü at time t from a piecewise polynomial held constant outside its breaks."""
+    n = breaks.shape[0] - 1
+    deg = coefs.shape[0] - 1
+    if t <= breaks[0]:
+        i = 0
+        x = 0.0
+        hold = True
+    elif t >= breaks[n]:
+        i = n - 1
+        x = breaks[n] - breaks[n - 1]
+        hold = True
+    else:
+        lo = 0
+        hi = n
+        while hi - lo > 1:  # bisection: breaks are few and calls are not ordered
+            mid = (lo + hi) // 2
+            if t >= breaks[mid]:
+                lo = mid
+            else:
+                hi = mid
+        i = lo
+        x = t - breaks[i]
+        hold = False
+    u = 0.0
+    v = 0.0
+    a = 0.0
+    for m in range(deg + 1):  # Horner for the value and two derivatives
+        a = a * x + 2.0 * v
+        v = v * x + u
+        u = u * x + coefs[m, i]
+    if hold:
+        return u, 0.0, 0.0
+    return u, v, a
+
+
+@njit(cache=True)
+def term_forces(kinds, gated, p, z, zd, sz, szd, outside, y, out):
+    """Fill out[j] with each term's force (N); return their sum."""
+    total = 0.0
+    for j in range(kinds.shape[0]):
+        if gated[j] and not outside:
+            f = 0.0
+        else:
+            o = N_GLOBAL + TERM_WIDTH * j
+            f = p[o] * basis(kinds[j], z, zd, sz, szd, y[2 + j], p[o + 1], p[o + 2], p[o + 3])
+        out[j] = f
+        total += f
+    return total
+
+
+@njit(cache=True)
+def required_force(kinds, gated, p, y, sz, outside, ua, scratch):
+    """Force static friction must supply to keep ż = 0 (N): m ü + F(z, 0)."""
+    return p[P_MASS] * ua + term_forces(kinds, gated, p, y[0], 0.0, sz, 0.0, outside, y, scratch)
+
+
+@njit(cache=True)
+def rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch):
+    """dy/dt for the frozen modes; returns ẍ (m/s²)."""
+    ua = base_motion(breaks, coefs, t)[2]
+    z = y[0]
+    zd = 0.0 if stuck else y[1]
+    for j in range(kinds.shape[0]):
+        o = N_GLOBAL + TERM_WIDTH * j
+        dy[2 + j] = state_rate(kinds[j], z, zd, y[2 + j], p[o], p[o + 1], p[o + 2], p[o + 3])
+    if stuck:
+        dy[0] = 0.0
+        dy[1] = 0.0
+        return ua
+    f = term_forces(kinds, gated, p, z, zd, sz, szd, outside, y, scratch)
+    xdd = -f / p[P_MASS]
+    dy[0] = zd
+    dy[1] = xdd - ua
+    return xdd
+
+
+@njit(cache=True)
+def rk4_step(kinds, gated, p, breaks, coefs, t, y, h, stuck, outside, sz, szd,
+             out, k1, k2, k3, k4, tmp, scratch):
+    """One classical RK4 step of length h with the modes frozen; result in `out`."""
+    n = y.shape[0]
+    rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, k1, scratch)
+    for i in range(n):
+        tmp[i] = y[i] + 0.5 * h * k1[i]
+    rhs(kinds, gated, p, breaks, coefs, t + 0.5 * h, tmp, stuck, outside, sz, szd, k2, scratch)
+    for i in range(n):
+        tmp[i] = y[i] + 0.5 * h * k2[i]
+    rhs(kinds, gated, p, breaks, coefs, t + 0.5 * h, tmp, stuck, outside, sz, szd, k3, scratch)
+    for i in range(n):
+        tmp[i] = y[i] + h * k3[i]
+    rhs(kinds, gated, p, breaks, coefs, t + h, tmp, stuck, outside, sz, szd, k4, scratch)
+    for i in range(n):
+        out[i] = y[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+
+
+@njit(cache=True)
+def event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, direction,
+                 uses_sz, uses_szd, g, scratch):
+    """Event functions at (t, y) for the current modes; an event is armed while g > 0.
+
+    `direction` is sgn(ż) at the step start, or 0 when |ż| ≤ ε then (the stop
+    event is armed only once the motion has left the ε band).
+    """
+    for i in range(N_EVENTS):
+        g[i] = math.inf
+    delta = p[P_DEAD_BAND]
+    friction = p[P_BREAKAWAY] > 0.0
+    if stuck:
+        if friction:
+            ua = base_motion(breaks, coefs, t)[2]
+            g[EV_BREAKAWAY] = p[P_BREAKAWAY] - abs(
+                required_force(kinds, gated, p, y, sz, outside, ua, scratch))
+        return
+    if delta > 0.0:
+        g[EV_BAND] = abs(y[0]) - delta if outside else delta - abs(y[0])
+    if uses_sz and sz != 0.0:
+        g[EV_Z0] = sz * y[0]
+    if uses_szd and szd != 0.0:
+        g[EV_ZD0] = szd * y[1]
+    if friction and direction != 0.0:
+        g[EV_STOP] = direction * y[1] - p[P_STOP_VELOCITY]
+
+
+@njit(cache=True)
+def _sign(x):
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+@njit(cache=True)
+def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+                 out_z, out_zd, out_xdd, out_f, out_s, out_stuck, record):
+    """Integrate one parameter set; write n_out samples spaced dt from t0.
+
+    out_f (J+1, n_out): each term's force and, last, the static-friction force;
+    out_s (J, n_out): internal states; out_stuck (n_out,): 1 while stuck.
+    These three are written only when `record` is true.
+    """
+    nt = kinds.shape[0]
+    n = 2 + nt
+    y = np.zeros(n)
+    y1 = np.zeros(n)
+    ytry = np.zeros(n)
+    k1 = np.zeros(n)
+    k2 = np.zeros(n)
+    k3 = np.zeros(n)
+    k4 = np.zeros(n)
+    tmp = np.zeros(n)
+    dy = np.zeros(n)
+    scratch = np.zeros(max(nt, 1))
+    g0 = np.zeros(N_EVENTS)
+    g1 = np.zeros(N_EVENTS)
+    gt = np.zeros(N_EVENTS)
+
+    uses_sz = False
+    uses_szd = False
+    for j in range(nt):
+        if kinds[j] == PRELOAD:
+            uses_sz = True
+        if kinds[j] == COULOMB:
+            uses_szd = True
+    delta = p[P_DEAD_BAND]
+    fbreak = p[P_BREAKAWAY]
+    eps = p[P_STOP_VELOCITY]
+    friction = fbreak > 0.0
+
+    y[0] = z0
+    y[1] = zd0
+    outside = (abs(z0) > delta) if delta > 0.0 else True
+    sz = _sign(z0)
+    szd = _sign(zd0)
+    stuck = False
+    if friction and zd0 == 0.0:
+        ua = base_motion(breaks, coefs, t0)[2]
+        stuck = abs(required_force(kinds, gated, p, y, sz, outside, ua, scratch)) <= fbreak
+
+    h = dt / substeps
+    t = t0
+    for k in range(n_out):
+        if k > 0:
+            for _ in range(substeps):
+                t_end = t + h
+                nev = 0
+                while t_end - t > 1e-12 * h:
+                    hrem = t_end - t
+                    # signs start when the motion does: a state at rest has no sign yet
+                    if sz == 0.0 and y[0] != 0.0:
+                        sz = _sign(y[0])
+                    if not stuck and szd == 0.0 and y[1] != 0.0:
+                        szd = _sign(y[1])
+                    direction = 0.0
+                    if not stuck and friction:
+                        if abs(y[1]) > eps:
+                            direction = _sign(y[1])
+                        else:
+                            # inside the ε band and not armed: stick as soon as the force allows
+                            ua = base_motion(breaks, coefs, t)[2]
+                            if abs(required_force(kinds, gated, p, y, sz, outside, ua,
+                                                  scratch)) <= fbreak:
+                                stuck = True
+                                y[1] = 0.0
+                    event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd,
+                                 direction, uses_sz, uses_szd, g0, scratch)
+                    rk4_step(kinds, gated, p, breaks, coefs, t, y, hrem, stuck, outside, sz, szd,
+                             y1, k1, k2, k3, k4, tmp, scratch)
+                    event_values(kinds, gated, p, breaks, coefs, t + hrem, y1, stuck, outside,
+                                 sz, szd, direction, uses_sz, uses_szd, g1, scratch)
+                    fired = False
+                    for i in range(N_EVENTS):
+                        if g0[i] > 0.0 and g1[i] <= 0.0:
+                            fired = True
+                    if not fired or nev >= MAX_EVENTS_PER_STEP:
+                        for i in range(n):
+                            y[i] = y1[i]
+                        t = t_end
+                        if fired:  # too many switches in one step: re-derive modes from the state
+                            outside = (abs(y[0]) > delta) if delta > 0.0 else True
+                            sz = _sign(y[0])
+                            szd = _sign(y[1])
+                        break
+                    # earliest event: Illinois regula falsi on the fraction θ of the step
+                    theta_best = 1.0
+                    for i in range(N_EVENTS):
+                        if not (g0[i] > 0.0 and g1[i] <= 0.0):
+                            continue
+                        lo = 0.0
+                        hi = 1.0
+                        glo = g0[i]
+                        ghi = g1[i]
+                        side = 0
+                        for _it in range(ROOT_ITERATIONS):
+                            if (hi - lo) * hrem <= 1e-13 + 1e-13 * abs(t):
+                                break
+                            th = (lo * ghi - hi * glo) / (ghi - glo)
+                            if not (lo < th < hi):
+                                th = 0.5 * (lo + hi)
+                            rk4_step(kinds, gated, p, breaks, coefs, t, y, th * hrem, stuck,
+                                     outside, sz, szd, ytry, k1, k2, k3, k4, tmp, scratch)
+                            event_values(kinds, gated, p, breaks, coefs, t + th * hrem, ytry,
+                                         stuck, outside, sz, szd, direction, uses_sz, uses_szd,
+                                         gt, scratch)
+                            gv = gt[i]
+                            if gv > 0.0:
+                                lo = th
+                                glo = gv
+                                if side == -1:
+                                    ghi *= 0.5
+                                side = -1
+                            else:
+                                hi = th
+                                ghi = gv
+                                if side == 1:
+                                    glo *= 0.5
+                                side = 1
+                        if hi < theta_best:
+                            theta_best = hi
+                    # step to just past the event, then switch every mode whose event has fired
+                    hs = theta_best * hrem
+                    rk4_step(kinds, gated, p, breaks, coefs, t, y, hs, stuck, outside, sz, szd,
+                             ytry, k1, k2, k3, k4, tmp, scratch)
+                    t = t + hs
+                    for i in range(n):
+                        y[i] = ytry[i]
+                    event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd,
+                                 direction, uses_sz, uses_szd, gt, scratch)
+                    nev += 1
+                    if g0[EV_BAND] > 0.0 and gt[EV_BAND] <= 0.0:
+                        outside = not outside
+                    if g0[EV_Z0] > 0.0 and gt[EV_Z0] <= 0.0:
+                        sz = -sz
+                    if g0[EV_ZD0] > 0.0 and gt[EV_ZD0] <= 0.0:
+                        szd = -szd
+                    if g0[EV_BREAKAWAY] > 0.0 and gt[EV_BREAKAWAY] <= 0.0:
+                        ua = base_motion(breaks, coefs, t)[2]
+                        freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
+                        stuck = False
+                        szd = -_sign(freq)  # the mass slips the way the unbalanced force pushes
+                    elif g0[EV_STOP] > 0.0 and gt[EV_STOP] <= 0.0:
+                        ua = base_motion(breaks, coefs, t)[2]
+                        if abs(required_force(kinds, gated, p, y, sz, outside, ua,
+                                              scratch)) <= fbreak:
+                            stuck = True
+                            y[1] = 0.0
+            t = t0 + k * dt  # snap to the output grid: no drift from summing h
+        # record the sample at t
+        xdd = rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch)
+        out_z[k] = y[0]
+        out_zd[k] = 0.0 if stuck else y[1]
+        out_xdd[k] = xdd
+        if record:
+            ftot = term_forces(kinds, gated, p, y[0], out_zd[k], sz, 0.0 if stuck else szd,
+                               outside, y, scratch)
+            for j in range(nt):
+                out_f[j, k] = scratch[j]
+                out_s[j, k] = y[2 + j]
+            if stuck:
+                ua = base_motion(breaks, coefs, t)[2]
+                out_f[nt, k] = -(p[P_MASS] * ua + ftot)
+            else:
+                out_f[nt, k] = 0.0
+            out_stuck[k] = 1.0 if stuck else 0.0
+
+
+@njit(cache=True, parallel=True)
+def simulate_many(kinds, gated, P, breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+                  out_z, out_zd, out_xdd):
+    """simulate_one for each row of P (N, n_params), in parallel; responses only."""
+    nt = kinds.shape[0]
+    for r in prange(P.shape[0]):
+        f = np.empty((nt + 1, 0))
+        s = np.empty((nt, 0))
+        st = np.empty(0)
+        simulate_one(kinds, gated, P[r], breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+                     out_z[r], out_zd[r], out_xdd[r], f, s, st, False)
