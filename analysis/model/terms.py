@@ -35,7 +35,7 @@ BOUC_WEN = 9
 MAX_SHAPE = 3  # shape constants per term in the kernel's parameter layout
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
           a: float, b: float, c: float) -> float:
     """Basis function of a term kind, N per unit coefficient.
@@ -67,7 +67,7 @@ def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
     return math.nan
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def state_rate(kind: int, z: float, zd: float, s: float, coef: float,
                a: float, b: float, c: float) -> float:
     """Time derivative of a term's internal state (0 for stateless kinds)."""

@@ -17,7 +17,7 @@ from analysis.model.isolator import IsolatorModel
 from analysis.simulate.kernel import simulate_many, simulate_one
 
 DEFAULT_DT = 1e-3  # s, output sample interval (the sensors' 1 kHz)
-DEFAULT_SUBSTEPS = 4  # RK4 steps per output sample
+DEFAULT_SUBSTEPS = 1  # RK4 steps per output sample: at 1 ms, 0.3 µm error on run A
 
 
 @dataclass(frozen=True)

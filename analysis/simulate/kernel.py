@@ -35,11 +35,11 @@ MAX_EVENTS_PER_STEP = 16
 ROOT_ITERATIONS = 60
 
 # event slots
-EV_BAND, EV_Z0, EV_ZD0, EV_STOP, EV_BREAKAWAY = range(5)
-N_EVENTS = 5
+EV_BAND, EV_Z0, EV_ZD0, EV_STOP, EV_BREAKAWAY, EV_GRIP, EV_LEAVE = range(7)
+N_EVENTS = 7
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def base_motion(breaks, coefs, t):
     """u, u̇, ü at time t from a piecewise polynomial held constant outside its breaks."""
     n = breaks.shape[0] - 1
@@ -81,10 +81,10 @@ def term_forces(kinds, gated, p, z, zd, sz, szd, outside, y, out):
     """Fill out[j] with each term's force (N); return their sum."""
     total = 0.0
     for j in range(kinds.shape[0]):
-        if gated[j] and not outside:
+        o = N_GLOBAL + TERM_WIDTH * j
+        if (gated[j] and not outside) or p[o] == 0.0:
             f = 0.0
         else:
-            o = N_GLOBAL + TERM_WIDTH * j
             f = p[o] * basis(kinds[j], z, zd, sz, szd, y[2 + j], p[o + 1], p[o + 2], p[o + 3])
         out[j] = f
         total += f
@@ -162,9 +162,16 @@ def event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, 
         g[EV_ZD0] = szd * y[1]
     if friction and direction != 0.0:
         g[EV_STOP] = direction * y[1] - p[P_STOP_VELOCITY]
+    elif friction:
+        # slow and slipping (|ż| ≤ ε, the stop event not armed): static friction grips
+        # as soon as the force falls within breakaway, unless |ż| leaves the band first
+        ua = base_motion(breaks, coefs, t)[2]
+        g[EV_GRIP] = abs(required_force(kinds, gated, p, y, sz, outside, ua, scratch)) - p[
+            P_BREAKAWAY]
+        g[EV_LEAVE] = p[P_STOP_VELOCITY] - abs(y[1])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sign(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
@@ -196,10 +203,11 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
 
     uses_sz = False
     uses_szd = False
-    for j in range(nt):
-        if kinds[j] == PRELOAD:
+    for j in range(nt):  # a sign switch matters only where its term has a force
+        coef = p[N_GLOBAL + TERM_WIDTH * j]
+        if kinds[j] == PRELOAD and coef != 0.0:
             uses_sz = True
-        if kinds[j] == COULOMB:
+        if kinds[j] == COULOMB and coef != 0.0:
             uses_szd = True
     delta = p[P_DEAD_BAND]
     fbreak = p[P_BREAKAWAY]
@@ -317,6 +325,9 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                         freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
                         stuck = False
                         szd = -_sign(freq)  # the mass slips the way the unbalanced force pushes
+                    elif g0[EV_GRIP] > 0.0 and gt[EV_GRIP] <= 0.0:
+                        stuck = True
+                        y[1] = 0.0
                     elif g0[EV_STOP] > 0.0 and gt[EV_STOP] <= 0.0:
                         ua = base_motion(breaks, coefs, t)[2]
                         if abs(required_force(kinds, gated, p, y, sz, outside, ua,

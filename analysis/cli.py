@@ -1,0 +1,33 @@
+"""`analysis`: identify an isolator from logged runs and print the report's constants."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from analysis.model.report_constants import format_table1
+from rig.cli_support import guarded
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="analysis", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("constants", help="print the report's Table 1")
+    p.add_argument("--units", default="us", choices=("us", "si"))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return guarded(_main, argv, "analysis")
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command == "constants":
+        print(format_table1(args.units))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

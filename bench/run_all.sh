@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Runs every benchmark; each prints ratios against a baseline measured in the same run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+for b in bench/simulate.py; do
+  echo "== $b"
+  python "$b"
+done

@@ -1,0 +1,352 @@
+"""The rig's CAN messages, typed: dataclasses in, dataclasses out, through data/isolator_rig.dbc.
+
+The DBC is the one description of the wire (cantools loads it once); this module
+maps its signals to dataclasses and back, and budgets the bus load. Classical CAN,
+11-bit ids, 8 data bytes a frame. Ids by priority (lower wins arbitration):
+
+    0x010        RigCommand          rig → all        enable, start at sample, stop, safe state
+    0x101–0x106  ActuatorSetpoint<i> rig → actuator i  position from mid-stroke, 1 µm
+    0x150        TableSensor         sensor → rig     counts, sequence, device µs
+    0x201–0x206  ActuatorFeedback<i> actuator i → rig  position, state, fault bits
+    0x701–0x708  Heartbeat<node>     node → all       node id, counter, state
+
+Counters are the low bits of an unbounded count: encode wraps, `unwrap` restores.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+from dataclasses import dataclass
+from typing import Union
+
+import can
+import cantools
+from cantools.database.can import Database
+
+from rig.config import RigConfig
+from rig.errors import DataError, LimitError
+from rig.paths import data_file
+
+COMMAND_ID = 0x010
+SETPOINT_BASE = 0x100
+TABLE_SENSOR_ID = 0x150
+FEEDBACK_BASE = 0x200
+HEARTBEAT_BASE = 0x700
+ACTUATORS = range(1, 7)
+NODE_RIG = 7
+NODE_TABLE_SENSOR = 8
+NODES = range(1, 9)  # actuators 1–6 are nodes 1–6
+#: width (bits) of each wrapping counter on the wire
+SETPOINT_SEQUENCE_BITS = FEEDBACK_SEQUENCE_BITS = 16
+SENSOR_SEQUENCE_BITS = COUNTER_BITS = 8
+TIMESTAMP_BITS = 32
+
+
+class NodeState(enum.IntEnum):
+    """State a node reports in its heartbeat and an actuator in its feedback."""
+
+    BOOT = 0
+    DISABLED = 1
+    ENABLED = 2
+    RUNNING = 3
+    SAFE_STATE = 4
+    FAULT = 5
+
+
+class CommandKind(enum.IntEnum):
+    """What a RigCommand asks of every node."""
+
+    ENABLE = 1
+    START = 2  # begin following setpoints at `start_sample`
+    STOP = 3  # hold the last setpoint
+    SAFE_STATE = 4  # valves to the safe position, regardless of setpoints
+
+
+class Fault(enum.IntFlag):
+    """Fault bits of ActuatorFeedback."""
+
+    NONE = 0
+    FOLLOWING_ERROR = 1
+    STROKE_LIMIT = 2
+    VALVE = 4
+    WATCHDOG_HOLD = 8  # the rig's heartbeat stopped; the actuator holds position
+
+
+_FAULT_SIGNALS = {Fault.FOLLOWING_ERROR: "FaultFollowingError",
+                  Fault.STROKE_LIMIT: "FaultStrokeLimit", Fault.VALVE: "FaultValve",
+                  Fault.WATCHDOG_HOLD: "FaultWatchdogHold"}
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """Actuator `actuator` (1–6) to `position` (m from mid-stroke) at setpoint `sequence`."""
+
+    actuator: int
+    sequence: int
+    position: float
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """Actuator `actuator`'s measured `position` (m from mid-stroke), state and faults."""
+
+    actuator: int
+    sequence: int
+    position: float
+    status: NodeState
+    faults: Fault = Fault.NONE
+
+
+@dataclass(frozen=True)
+class TableSample:
+    """One table sensor sample: raw `counts` (config scale → m) at device `timestamp_us`."""
+
+    counts: int
+    sequence: int
+    timestamp_us: int
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """Node `node` (1–8) is alive in `state`; `counter` counts its heartbeats."""
+
+    node: int
+    counter: int
+    state: NodeState
+
+
+@dataclass(frozen=True)
+class Command:
+    """A rig command to every node; `counter` lets a node drop a repeated frame."""
+
+    command: CommandKind
+    counter: int = 0
+    start_sample: int = 0  # START: the full setpoint sample index to begin at
+
+
+RigMessage = Union[Setpoint, Feedback, TableSample, Heartbeat, Command]
+
+
+@functools.cache
+def database() -> Database:
+    """The rig's DBC, parsed once."""
+    return cantools.database.load_file(str(data_file("isolator_rig.dbc")), strict=True)
+
+
+def known_ids() -> frozenset[int]:
+    """Every arbitration id in the DBC (for receive filters)."""
+    return frozenset(m.frame_id for m in database().messages)
+
+
+def encode(msg: RigMessage) -> tuple[int, bytes]:
+    """(arbitration id, 8 data bytes) of `msg`; ValueError names an out-of-range field."""
+    frame_id, signals = _signals(msg)
+    try:
+        data = database().get_message_by_frame_id(frame_id).encode(signals, strict=True)
+    except (cantools.database.EncodeError, ValueError, OverflowError) as e:  # range, NaN
+        raise ValueError(f"cannot encode {msg}: {e}") from None
+    return frame_id, data
+
+
+def decode(arbitration_id: int, data: bytes) -> RigMessage:
+    """The message in a frame; DataError for an unknown id or malformed data."""
+    try:
+        message = database().get_message_by_frame_id(arbitration_id)
+    except KeyError:
+        raise DataError(f"CAN id 0x{arbitration_id:03X} is not in the rig's DBC") from None
+    try:
+        s = message.decode(bytes(data), decode_choices=False, allow_excess=False)
+        return _build(message.name, arbitration_id, s)
+    except (cantools.database.DecodeError, ValueError) as e:
+        raise DataError(f"{message.name} (0x{arbitration_id:03X}) {bytes(data).hex()}: {e}") \
+            from None
+
+
+def to_can(msg: RigMessage) -> can.Message:
+    """A python-can frame (11-bit id) carrying `msg`."""
+    frame_id, data = encode(msg)
+    return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
+
+
+def from_can(frame: can.Message) -> RigMessage:
+    """The message in a python-can frame; DataError if it is not one of ours."""
+    if frame.is_extended_id or frame.is_remote_frame or frame.is_fd:
+        raise DataError(f"CAN frame 0x{frame.arbitration_id:X} is not a classical 11-bit "
+                        "data frame")
+    return decode(frame.arbitration_id, frame.data)
+
+
+def unwrap(previous: int, counter: int, bits: int) -> int:
+    """The full count nearest after `previous` whose low `bits` are `counter`.
+
+    E.g. unwrap(65535, 1, 16) == 65537. Assumes fewer than 2**bits counts were lost.
+    """
+    modulus = 1 << bits
+    return previous + (counter - previous) % modulus
+
+
+def _check_index(name: str, value: int, allowed: range) -> None:
+    if value not in allowed:
+        raise ValueError(f"{name} must be in {allowed.start}..{allowed.stop - 1}, got {value}")
+
+
+def _signals(msg: RigMessage) -> tuple[int, dict[str, float | int]]:
+    """Arbitration id and cantools signal values of `msg` (counters wrapped)."""
+    if isinstance(msg, Setpoint):
+        _check_index("actuator", msg.actuator, ACTUATORS)
+        return SETPOINT_BASE + msg.actuator, {
+            "ActuatorIndex": msg.actuator, "Position": msg.position,
+            "Sequence": msg.sequence % (1 << SETPOINT_SEQUENCE_BITS)}
+    if isinstance(msg, Feedback):
+        _check_index("actuator", msg.actuator, ACTUATORS)
+        faults = {sig: int(bool(msg.faults & bit)) for bit, sig in _FAULT_SIGNALS.items()}
+        return FEEDBACK_BASE + msg.actuator, {
+            "ActuatorIndex": msg.actuator, "Position": msg.position, "Status": int(msg.status),
+            "Sequence": msg.sequence % (1 << FEEDBACK_SEQUENCE_BITS), **faults}
+    if isinstance(msg, TableSample):
+        return TABLE_SENSOR_ID, {
+            "Counts": msg.counts, "Sequence": msg.sequence % (1 << SENSOR_SEQUENCE_BITS),
+            "TimestampUs": msg.timestamp_us % (1 << TIMESTAMP_BITS)}
+    if isinstance(msg, Heartbeat):
+        _check_index("node", msg.node, NODES)
+        return HEARTBEAT_BASE + msg.node, {
+            "NodeId": msg.node, "Counter": msg.counter % (1 << COUNTER_BITS),
+            "State": int(msg.state)}
+    if isinstance(msg, Command):
+        return COMMAND_ID, {"Command": int(msg.command), "StartSample": msg.start_sample,
+                            "Counter": msg.counter % (1 << COUNTER_BITS)}
+    raise TypeError(f"not a rig CAN message: {msg!r}")
+
+
+def _build(name: str, frame_id: int, s: dict) -> RigMessage:
+    """The dataclass for decoded signals `s` of message `name`; ValueError if inconsistent."""
+    if name.startswith(("ActuatorSetpoint", "ActuatorFeedback")):
+        base = SETPOINT_BASE if name.startswith("ActuatorSetpoint") else FEEDBACK_BASE
+        if s["ActuatorIndex"] != frame_id - base:
+            raise ValueError(f"ActuatorIndex {s['ActuatorIndex']} on the id of actuator "
+                             f"{frame_id - base}")
+        if base == SETPOINT_BASE:
+            return Setpoint(int(s["ActuatorIndex"]), int(s["Sequence"]), _metres(s["Position"]))
+        faults = Fault.NONE
+        for bit, sig in _FAULT_SIGNALS.items():
+            faults |= bit if s[sig] else Fault.NONE
+        return Feedback(int(s["ActuatorIndex"]), int(s["Sequence"]), _metres(s["Position"]),
+                        NodeState(s["Status"]), faults)
+    if name == "TableSensor":
+        return TableSample(int(s["Counts"]), int(s["Sequence"]), int(s["TimestampUs"]))
+    if name.startswith("Heartbeat"):
+        if s["NodeId"] != frame_id - HEARTBEAT_BASE:
+            raise ValueError(f"NodeId {s['NodeId']} on the id of node {frame_id - HEARTBEAT_BASE}")
+        return Heartbeat(int(s["NodeId"]), int(s["Counter"]), NodeState(s["State"]))
+    return Command(CommandKind(s["Command"]), int(s["Counter"]), int(s["StartSample"]))
+
+
+def _metres(value: float) -> float:
+    # raw × 1e-6 lands a few ulp off the decimal value; rounding far below the 1 µm
+    # resolution makes −50000 µm decode as −0.05 m exactly, as it was sent
+    return round(float(value), 9)
+
+
+# --- bus load ---------------------------------------------------------------------------
+
+STUFFED_OVERHEAD_BITS = 34  # SOF, 11-bit id, RTR, IDE, r0, DLC, 15-bit CRC: bit-stuffed
+FIXED_OVERHEAD_BITS = 13  # CRC and ACK delimiters, ACK slot, 7-bit EOF, 3-bit intermission
+
+
+def frame_bits(data_bytes: int = 8) -> tuple[int, int]:
+    """(best, worst) bits a classical 11-bit data frame takes on the bus, intermission included.
+
+    Worst case: one stuff bit after every 4 of the stuffed part but the first, so
+    8 data bytes take 111 bits best, 135 worst.
+    """
+    stuffed = STUFFED_OVERHEAD_BITS + 8 * data_bytes
+    best = stuffed + FIXED_OVERHEAD_BITS
+    return best, best + (stuffed - 1) // 4
+
+
+@dataclass(frozen=True)
+class Stream:
+    """A cyclic message: `senders` frames of `data_bytes` each, `rate` (Hz) times a second."""
+
+    name: str
+    senders: int
+    rate: float
+    data_bytes: int
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.senders * self.rate
+
+
+@dataclass(frozen=True)
+class BusLoad:
+    """The cyclic traffic of a configuration against its bitrate (bit/s) and budget (fraction)."""
+
+    bitrate: int
+    budget: float
+    streams: tuple[Stream, ...]
+
+    @property
+    def frames_per_s(self) -> float:
+        return sum(s.frames_per_s for s in self.streams)
+
+    def bits_per_s(self, case: str = "worst") -> float:
+        """Bus bits per second with `case` 'best' or 'worst' bit stuffing."""
+        pick = {"best": 0, "worst": 1}[case]
+        return sum(s.frames_per_s * frame_bits(s.data_bytes)[pick] for s in self.streams)
+
+    @property
+    def load_best(self) -> float:
+        return self.bits_per_s("best") / self.bitrate
+
+    @property
+    def load_worst(self) -> float:
+        return self.bits_per_s("worst") / self.bitrate
+
+    @property
+    def fits(self) -> bool:
+        return self.load_worst <= self.budget
+
+    def format(self) -> str:
+        """A table of the streams, frames/s and the load in both cases."""
+        lines = [f"CAN bus load at {self.bitrate:,} bit/s (budget {self.budget:.0%} worst case)"]
+        for s in self.streams:
+            lines.append(f"  {s.name:<13} {s.senders} x {s.rate:>6g} Hz {s.frames_per_s:>8,.0f} "
+                         f"frames/s")
+        lines.append(f"  {'total':<25} {self.frames_per_s:>8,.0f} frames/s")
+        for case, load in (("best", self.load_best), ("worst", self.load_worst)):
+            bits = {frame_bits(s.data_bytes)[case == "worst"] for s in self.streams}
+            per = "/".join(str(b) for b in sorted(bits))
+            lines.append(f"  {case:<5} case, {per}-bit frames: {self.bits_per_s(case):>10,.0f} "
+                         f"bit/s = {load:.1%}")
+        lines.append(f"  {'fits' if self.fits else 'OVER'} the {self.budget:.0%} budget")
+        return "\n".join(lines)
+
+
+def bus_load(config: RigConfig) -> BusLoad:
+    """The cyclic frames of `config` (commands are events and ride in the budget's headroom)."""
+    db = database()
+
+    def size(name: str) -> int:
+        return db.get_message_by_name(name).length
+
+    rates = config.rates
+    streams = (
+        Stream("setpoints", len(ACTUATORS), rates.setpoint, size("ActuatorSetpoint1")),
+        Stream("feedback", len(ACTUATORS), rates.feedback, size("ActuatorFeedback1")),
+        Stream("table sensor", 1, config.table_sensor.sample_rate, size("TableSensor")),
+        Stream("heartbeats", len(NODES), rates.heartbeat, size("HeartbeatRIG")),
+    )
+    return BusLoad(config.can.bitrate, config.can.load_budget, streams)
+
+
+def check_bus_load(config: RigConfig) -> BusLoad:
+    """`bus_load(config)`, or LimitError if the worst case is over the budget."""
+    load = bus_load(config)
+    if not load.fits:
+        raise LimitError(
+            f"CAN bus load {load.frames_per_s:,.0f} frames/s is {load.load_worst:.1%} of "
+            f"{load.bitrate:,} bit/s with worst-case stuffing ({load.load_best:.1%} best case), "
+            f"over the {load.budget:.0%} budget; lower [rates] or raise can.load_budget")
+    return load

@@ -1,0 +1,54 @@
+"""`rig`: the test-rig controller: profiles, limit checks, runs."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from rig.cli_support import guarded
+from rig.profile import load_profile
+from rig.units import from_si
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rig", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("profile", help="show a table motion profile and its peaks")
+    p.add_argument("profile", help="A, B, C or a profile TOML file")
+    p.add_argument("--units", default="us", choices=("us", "si"))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return guarded(_main, argv, "rig")
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command == "profile":
+        print(format_profile(args.profile, args.units))
+    return 0
+
+
+def format_profile(spec: str, units: str) -> str:
+    p = load_profile(spec)
+    length = "in" if units == "us" else "m"
+    conv = (lambda v, u: from_si(v, u)) if units == "us" else (lambda v, u: v)
+    lines = [f"profile {p.name}: {p.description}", f"duration {p.duration:.3f} s"]
+    t = 0.0
+    for i, seg in enumerate(p.segments, start=1):
+        what = (f"ramp to {conv(seg.target, length):+.3f} {length}" if seg.is_ramp
+                else "hold")
+        lines.append(f"  {i}. {t:7.3f} s  {what} over {seg.duration:.3f} s")
+        t += seg.duration
+    pk = p.peaks()
+    lines.append(f"peaks: |u| {conv(pk['displacement'], length):.3f} {length}, "
+                 f"|u'| {conv(pk['velocity'], length + '/s'):.3f} {length}/s, "
+                 f"|u''| {conv(pk['acceleration'], length + '/s^2'):.1f} {length}/s^2 "
+                 f"({pk['acceleration'] / 9.80665:.2f} g)")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

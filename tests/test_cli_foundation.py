@@ -1,0 +1,78 @@
+"""The console scripts of the foundation: in-process, and one real subprocess."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.cli import main as analysis_main
+from rig.cli import main as rig_main
+from sim.cli import main as sim_main
+
+
+def test_sim_response_prints_peaks_in_us_units(capsys):
+    assert sim_main(["response", "--run", "A"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("relative displacement z"))
+    peak_in = abs(float(line.split()[3]))
+    assert 2.0 < peak_in < 6.0 and " in " in line
+    assert "in/s^2" in out and " g)" in out
+
+
+def test_sim_response_csv_in_si_matches_us(tmp_path, capsys):
+    si, us = tmp_path / "si.csv", tmp_path / "us.csv"
+    assert sim_main(["response", "--run", "C", "--units", "si", "--out", str(si)]) == 0
+    assert sim_main(["response", "--run", "C", "--units", "us", "--out", str(us)]) == 0
+    with open(si) as f:
+        header_si = next(csv.reader(f))
+    with open(us) as f:
+        header_us = next(csv.reader(f))
+    assert header_si[:3] == ["t [s]", "u [m]", "x [m]"] and header_us[1] == "u [in]"
+    a_si = np.loadtxt(si, delimiter=",", skiprows=1)
+    a_us = np.loadtxt(us, delimiter=",", skiprows=1)
+    assert a_si.shape == (3001, len(header_si))
+    np.testing.assert_allclose(a_us[:, 3] * 0.0254, a_si[:, 3], rtol=1e-12, atol=1e-15)
+    assert "wrote 3001 samples" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["response", "--run", "nowhere.toml"], "no such profile"),
+    (["response", "--run", "A", "--constants", "Z"], "invalid choice"),
+])
+def test_sim_bad_input_is_one_line(argv, needle, capsys):
+    with pytest.raises(SystemExit) if "invalid" in needle else _nothing():
+        code = sim_main(argv)
+        assert code == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_analysis_constants_and_rig_profile(capsys):
+    assert analysis_main(["constants", "--units", "si"]) == 0
+    assert "N/(m/s)" in capsys.readouterr().out
+    assert rig_main(["profile", "C"]) == 0
+    out = capsys.readouterr().out
+    assert "ramp to +5.500 in over 0.120 s" in out and "5.71 g" in out
+
+
+def test_installed_console_script_runs_the_main_job():
+    """README's main job, as a person types it, in a real subprocess."""
+    script = Path(sys.executable).with_name("sim")
+    assert script.exists(), "the package's console scripts are not installed"
+    done = subprocess.run([str(script), "response", "--run", "A"], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "relative displacement z" in done.stdout and "Traceback" not in done.stderr
