@@ -9,6 +9,7 @@ from pathlib import Path
 
 from analysis.model.report_constants import RUNS
 from rig.cli_support import guarded
+from sim import cli_generate
 from sim.response import format_peaks, run_response, write_csv
 
 
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--units", default="us", choices=("us", "si"),
                    help="report's units (in, lb, s) or SI (default us)")
     p.add_argument("--out", type=Path, help="write every sample to this CSV file")
+    cli_generate.add_parser(sub)
     return parser
 
 
@@ -41,6 +43,8 @@ def _main(argv: Sequence[str] | None) -> int:
         if args.out:
             write_csv(r, args.out, args.units)
             print(f"wrote {len(r.t)} samples to {args.out}")
+    elif args.command == "generate":
+        return cli_generate.run(args)
     return 0
 
 

@@ -23,6 +23,8 @@ EXPECTED = {
     "cubic_spring": lambda z, zd, a: z**3,
     "quadratic_damper": lambda z, zd, a: zd * abs(zd),
     "force_offset": lambda z, zd, a: 1.0,
+    "compression_spring": lambda z, zd, a: max(z, 0.0),
+    "extension_damper": lambda z, zd, a: max(zd, 0.0),
 }
 
 
@@ -81,3 +83,26 @@ def test_batch_equals_single(average_model, run_a):
         np.testing.assert_array_equal(batch.xdd[i], single.xdd)
     with pytest.raises(ValueError, match="parameter rows"):
         simulate_batch(average_model, V[:, :-1], run_a.motion())
+
+
+def test_thermal_damper_heats_with_dissipation_and_cools_with_its_time_constant():
+    """θ' = a ż² − θ/τ: θ rises while the damper works, then decays as exp(−t/τ) at rest."""
+    base = IsolatorModel(mass=2721.55, terms=(Term("linear_spring", "k1", 7.0e4),
+                                              Term("linear_damper", "c1", 6.0e3)))
+    heating, tau = 0.8, 2.0
+    warm = base.with_terms(Term("thermal_damper", "c_T", -400.0, (heating, tau)))
+    motion = Profile("pulse", (Segment(0.1), Segment(0.12, 0.14), Segment(0.12, 0.0),
+                               Segment(5.0))).motion()
+    r = simulate(warm, motion)
+    theta = r.states["c_T"]
+    # heating: while moving, the rise matches ∫ a ż² dt less the small loss over the pulse
+    i_peak = int(np.argmax(theta))
+    gained = np.trapezoid(heating * r.zd[: i_peak + 1] ** 2, r.t[: i_peak + 1])
+    assert theta[i_peak] == pytest.approx(gained, rel=0.15)
+    assert theta[i_peak] > 0.1
+    # cooling: once at rest, θ(t + 1 s) / θ(t) = exp(−1/τ)
+    rest = np.flatnonzero((np.abs(r.zd) < 1e-6) & (r.t > 3.0))
+    i = rest[0]
+    j = i + 1000
+    assert theta[j] / theta[i] == pytest.approx(np.exp(-1.0 / tau), rel=1e-4)
+    np.testing.assert_allclose(r.forces["c_T"], -400.0 * theta * r.zd, atol=1e-9)

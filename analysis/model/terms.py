@@ -31,6 +31,9 @@ CUBIC_SPRING = 6
 QUADRATIC_DAMPER = 7
 FORCE_OFFSET = 8
 BOUC_WEN = 9
+COMPRESSION_SPRING = 10
+EXTENSION_DAMPER = 11
+THERMAL_DAMPER = 12
 
 MAX_SHAPE = 3  # shape constants per term in the kernel's parameter layout
 
@@ -64,6 +67,12 @@ def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
         return 1.0
     if kind == BOUC_WEN:
         return s
+    if kind == COMPRESSION_SPRING:
+        return max(0.0, z)
+    if kind == EXTENSION_DAMPER:
+        return max(0.0, zd)
+    if kind == THERMAL_DAMPER:
+        return s * zd
     return math.nan
 
 
@@ -74,6 +83,10 @@ def state_rate(kind: int, z: float, zd: float, s: float, coef: float,
     if kind == BOUC_WEN:
         # Bouc–Wen with n = 1: r' = ż − a|ż| r − b ż |r|  (r in m, a and b in 1/m)
         return zd - a * abs(zd) * s - b * zd * abs(s)
+    if kind == THERMAL_DAMPER:
+        # fluid temperature rise θ (K): heated by the viscous power a ż² (a = c/C_th, in
+        # K s/m²), cooled through the casing with time constant b (s)
+        return a * zd * zd - (s / b if b > 0.0 else 0.0)
     return 0.0
 
 
@@ -115,6 +128,16 @@ KINDS: dict[str, TermKind] = {
         TermKind("force_offset", FORCE_OFFSET, "F₀", "N", meaning="constant force offset"),
         TermKind("bouc_wen", BOUC_WEN, "k r, r' = ż − a|ż|r − b ż|r|", "N/m", ("a", "b"),
                  ("1/m", "1/m"), has_state=True, meaning="rate-independent hysteresis"),
+        TermKind("compression_spring", COMPRESSION_SPRING, "k max(z, 0)", "N/m",
+                 gated_by_dead_band=True,
+                 meaning="extra stiffness in one direction: the rod displaces fluid only "
+                         "when the isolator closes"),
+        TermKind("extension_damper", EXTENSION_DAMPER, "c max(ż, 0)", "N/(m/s)",
+                 meaning="extra damping in one direction: a check valve in the piston head"),
+        TermKind("thermal_damper", THERMAL_DAMPER, "c θ ż, θ' = a ż² − θ/b", "N/(m/s)/K",
+                 ("heating", "tau"), ("K s/m^2", "s"), has_state=True,
+                 meaning="viscosity falls as the fluid heats from the energy the damper "
+                         "dissipates (c < 0): damping that drifts within and between runs"),
     )
 }
 

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline, PPoly
 
 from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import kind
 from analysis.simulate.kernel import simulate_many, simulate_one
 
 DEFAULT_DT = 1e-3  # s, output sample interval (the sensors' 1 kHz)
@@ -83,7 +84,7 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
     forces = {term.name: f[j] for j, term in enumerate(model.terms)}
     forces["static_friction"] = f[nt]
     states = {term.name: s[j] for j, term in enumerate(model.terms)
-              if term.kind in ("bouc_wen",)}
+              if kind(term.kind).has_state}
     return Response(t=t, u=u, ud=ud, udd=udd, x=z + u, z=z, zd=zd, xdd=xdd, forces=forces,
                     states=states, stuck=st > 0.5)
 
