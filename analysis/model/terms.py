@@ -10,7 +10,9 @@ A kind may carry one internal state (hysteresis, fluid temperature): its rate
 is `state_rate`, integrated by the simulator alongside z and ż.
 
 To add a kind: give it a code and a branch in `basis` (and `state_rate` if it
-has state), and a `TermKind` entry in `KINDS`.
+has state), and a `TermKind` entry in `KINDS`. Then touch
+analysis/simulate/kernel.py: numba's on-disk cache is keyed on the file that
+holds each compiled function, so it does not see a change here alone.
 """
 
 from __future__ import annotations

@@ -68,8 +68,13 @@ def _check_step(dt: float, substeps: int) -> None:
 
 def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
              dt: float = DEFAULT_DT, substeps: int = DEFAULT_SUBSTEPS,
-             t0: float | None = None, z0: float = 0.0, zd0: float = 0.0) -> Response:
-    """Integrate m ẍ = −F(z, ż, s) for table motion `motion`; samples every `dt` s."""
+             t0: float | None = None, z0: float = 0.0, zd0: float = 0.0,
+             s0: ArrayLike | None = None) -> Response:
+    """Integrate m ẍ = −F(z, ż, s) for table motion `motion`; samples every `dt` s.
+
+    s0: initial internal state of each term (J,), e.g. the fluid temperature a
+    previous run left; zeros by default.
+    """
     _check_step(dt, substeps)
     start, n = _grid(motion, duration, dt, t0)
     kinds, gated = model.structure()
@@ -78,7 +83,7 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
     f, s, st = np.empty((nt + 1, n)), np.empty((nt, n)), np.empty(n)
     breaks, coefs = np.ascontiguousarray(motion.x, float), np.ascontiguousarray(motion.c, float)
     simulate_one(kinds, gated, model.vector(), breaks, coefs, start, dt, n, substeps,
-                 z0, zd0, z, zd, xdd, f, s, st, True)
+                 z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, True)
     t = start + dt * np.arange(n)
     u, ud, udd = _table(motion, t)
     forces = {term.name: f[j] for j, term in enumerate(model.terms)}
@@ -87,6 +92,16 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
               if kind(term.kind).has_state}
     return Response(t=t, u=u, ud=ud, udd=udd, x=z + u, z=z, zd=zd, xdd=xdd, forces=forces,
                     states=states, stuck=st > 0.5)
+
+
+def _initial_states(s0: ArrayLike | None, rows: int, nt: int) -> np.ndarray:
+    """(rows, J) initial internal states from None, one (J,) row or (rows, J)."""
+    if s0 is None:
+        return np.zeros((rows, nt))
+    S = np.atleast_2d(np.asarray(s0, float))
+    if S.shape[1] != nt or S.shape[0] not in (1, rows):
+        raise ValueError(f"initial states have shape {S.shape}, need ({rows}, {nt}) or ({nt},)")
+    return np.ascontiguousarray(np.broadcast_to(S, (rows, nt)))
 
 
 def _table(motion: PPoly, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -109,8 +124,12 @@ class BatchResponse:
 
 def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
                    duration: float | None = None, dt: float = DEFAULT_DT,
-                   substeps: int = DEFAULT_SUBSTEPS, t0: float | None = None) -> BatchResponse:
-    """Simulate N parameter vectors (rows laid out as `model.vector()`) in parallel."""
+                   substeps: int = DEFAULT_SUBSTEPS, t0: float | None = None,
+                   s0: ArrayLike | None = None) -> BatchResponse:
+    """Simulate N parameter vectors (rows laid out as `model.vector()`) in parallel.
+
+    s0: initial internal states, (J,) for every row or (N, J) one per row.
+    """
     _check_step(dt, substeps)
     P = np.ascontiguousarray(np.atleast_2d(np.asarray(vectors, float)))
     if P.shape[1] != model.vector().size:
@@ -121,6 +140,6 @@ def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
     z, zd, xdd = (np.empty((P.shape[0], n)) for _ in range(3))
     simulate_many(kinds, gated, P, np.ascontiguousarray(motion.x, float),
                   np.ascontiguousarray(motion.c, float), start, dt, n, substeps, 0.0, 0.0,
-                  z, zd, xdd)
+                  _initial_states(s0, P.shape[0], len(model.terms)), z, zd, xdd)
     t = start + dt * np.arange(n)
     return BatchResponse(t=t, u=_table(motion, t)[0], z=z, zd=zd, xdd=xdd)

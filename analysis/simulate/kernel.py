@@ -177,7 +177,7 @@ def _sign(x):
 
 
 @njit(cache=True)
-def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd0, s0,
                  out_z, out_zd, out_xdd, out_f, out_s, out_stuck, record):
     """Integrate one parameter set; write n_out samples spaced dt from t0.
 
@@ -216,6 +216,8 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
 
     y[0] = z0
     y[1] = zd0
+    for j in range(nt):  # internal states start where the caller says (a warm fluid, …)
+        y[2 + j] = s0[j]
     outside = (abs(z0) > delta) if delta > 0.0 else True
     sz = _sign(z0)
     szd = _sign(zd0)
@@ -355,13 +357,16 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
 
 
 @njit(cache=True, parallel=True)
-def simulate_many(kinds, gated, P, breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+def simulate_many(kinds, gated, P, breaks, coefs, t0, dt, n_out, substeps, z0, zd0, S0,
                   out_z, out_zd, out_xdd):
-    """simulate_one for each row of P (N, n_params), in parallel; responses only."""
+    """simulate_one for each row of P (N, n_params), in parallel; responses only.
+
+    S0 (N, J): each row's initial internal states.
+    """
     nt = kinds.shape[0]
     for r in prange(P.shape[0]):
         f = np.empty((nt + 1, 0))
         s = np.empty((nt, 0))
         st = np.empty(0)
-        simulate_one(kinds, gated, P[r], breaks, coefs, t0, dt, n_out, substeps, z0, zd0,
+        simulate_one(kinds, gated, P[r], breaks, coefs, t0, dt, n_out, substeps, z0, zd0, S0[r],
                      out_z[r], out_zd[r], out_xdd[r], f, s, st, False)
