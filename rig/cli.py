@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from rig import cli_run
 from rig.cli_support import guarded
 from rig.profile import load_profile
 from rig.units import from_si
@@ -17,6 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("profile", help="show a table motion profile and its peaks")
     p.add_argument("profile", help="A, B, C or a profile TOML file")
     p.add_argument("--units", default="us", choices=("us", "si"))
+    cli_run.add_parsers(sub)
     return parser
 
 
@@ -28,7 +30,8 @@ def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "profile":
         print(format_profile(args.profile, args.units))
-    return 0
+        return 0
+    return cli_run.dispatch(args) or 0
 
 
 def format_profile(spec: str, units: str) -> str:

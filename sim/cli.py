@@ -9,7 +9,7 @@ from pathlib import Path
 
 from analysis.model.report_constants import RUNS
 from rig.cli_support import guarded
-from sim import cli_generate
+from sim import cli_generate, serve
 from sim.response import format_peaks, run_response, write_csv
 
 
@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="report's units (in, lb, s) or SI (default us)")
     p.add_argument("--out", type=Path, help="write every sample to this CSV file")
     cli_generate.add_parser(sub)
+    serve.add_parser(sub)
     return parser
 
 
@@ -45,6 +46,8 @@ def _main(argv: Sequence[str] | None) -> int:
             print(f"wrote {len(r.t)} samples to {args.out}")
     elif args.command == "generate":
         return cli_generate.run(args)
+    elif args.command == "serve":
+        return serve.run(args)
     return 0
 
 

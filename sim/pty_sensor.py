@@ -3,9 +3,11 @@
 The sensor owns both ends of `os.openpty()`; the rig opens `.path` with pyserial
 exactly as it would open /dev/ttyUSB0. A pty moves bytes ~40x faster than
 921600 baud and blocks instead of overrunning, so the writer paces itself: each
-write occupies the line for 10 bit times per byte (8N1), and nothing is written
-before the line is free. Writes are non-blocking: when nobody reads and the pty
-buffer is full, bytes are dropped like a UART overrun instead of stalling.
+write occupies the line for 10 bit times per byte (8N1) on the line's schedule,
+and nothing is written before the line is free by that schedule (a writer woken
+late catches up, as a transmit FIFO allows; the average never beats the baud).
+Writes are non-blocking: when nobody reads and the pty buffer is full, bytes are
+dropped like a UART overrun instead of stalling.
 
 Device clock: at host time t (seconds, `clock`), the device reads
 offset_s + (t - t_start) * (1 + drift_ppm * 1e-6) seconds. Sample k is taken at
@@ -174,8 +176,11 @@ class PtySensor:
                     return
                 data = self._frame(k, t_k, rng, faults)
                 self._write(data)
-                # the line stays busy for the bytes just sent, so bursts never beat the baud
-                line_free = max(self._clock(), line_free) + len(data) * byte_time
+                # the line stays busy for the bytes just sent, on the line's own schedule: a
+                # writer woken late catches up back to back, as a UART's transmit FIFO lets
+                # it (else at 5,760 frames/s, a full 921,600-baud line, every late wake-up
+                # was lost for good); from the start the line never carries more than the baud
+                line_free = max(t_k, line_free) + len(data) * byte_time
                 k += 1
         except Exception as exc:  # a broken sample() must not vanish with the thread
             self.error = exc
