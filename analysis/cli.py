@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from analysis.cli_fit import add_fit_parser, run_fit
 from analysis.model.report_constants import format_table1
 from rig.cli_support import guarded
 
@@ -15,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("constants", help="print the report's Table 1")
     p.add_argument("--units", default="us", choices=("us", "si"))
+    add_fit_parser(sub)
     return parser
 
 
@@ -26,6 +28,8 @@ def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "constants":
         print(format_table1(args.units))
+    elif args.command == "fit":
+        return run_fit(args)
     return 0
 
 

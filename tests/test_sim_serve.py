@@ -80,8 +80,18 @@ def test_servo_axis_lags_and_respects_its_velocity_limit() -> None:
         axis.step(1.0, 1e-3)
     assert axis.position == pytest.approx(0.010)  # rate-limited: 1 m/s for 10 ms
     slow = ServoAxis(max_velocity=100.0)
-    slow.step(1e-3, 5e-3)  # one time constant
-    assert slow.position == pytest.approx(1e-3 * (1 - np.exp(-1)))
+    slow.step(1e-3, 5e-3)  # one time constant, the target ramping 0 -> 1 mm over it
+    assert slow.position == pytest.approx(1e-3 * np.exp(-1))  # r - sτ + sτ e^(-1)
+    # following a ramp: lag sτ behind it, at the ramp's own velocity, with no jumps
+    ramp = ServoAxis(max_velocity=100.0)
+    s, dt = 0.5, 1e-3
+    v = []
+    for k in range(1, 200):
+        ramp.step(s * k * dt, dt)
+        v.append(ramp.velocity)
+    assert ramp.position == pytest.approx(s * 199 * dt - s * 0.005, abs=1e-9)
+    assert v[-1] == pytest.approx(s, rel=1e-9)
+    assert np.max(np.abs(np.diff(v))) < 0.2 * s  # smooth: 1 - e^(-dt/τ) of s at most
 
 
 def _frame(msg) -> can.Message:

@@ -27,8 +27,14 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from analysis.model.isolator import (N_GLOBAL, P_BREAKAWAY, P_DEAD_BAND, P_MASS,
-                                     P_STOP_VELOCITY, TERM_WIDTH)
+from analysis.model.isolator import (
+    N_GLOBAL,
+    P_BREAKAWAY,
+    P_DEAD_BAND,
+    P_MASS,
+    P_STOP_VELOCITY,
+    TERM_WIDTH,
+)
 from analysis.model.terms import COULOMB, PRELOAD, basis, state_rate
 
 MAX_EVENTS_PER_STEP = 16
@@ -304,8 +310,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                                 if side == 1:
                                     glo *= 0.5
                                 side = 1
-                        if hi < theta_best:
-                            theta_best = hi
+                        theta_best = min(theta_best, hi)
                     # step to just past the event, then switch every mode whose event has fired
                     hs = theta_best * hrem
                     rk4_step(kinds, gated, p, breaks, coefs, t, y, hs, stuck, outside, sz, szd,

@@ -81,13 +81,13 @@ def simulate_reference(model: IsolatorModel, motion, t_out: np.ndarray, rtol: fl
             band.terminal, band.direction = True, -1
             events.append(band)
         if armed:
-            stop = lambda s, y: szd * y[1] - eps  # noqa: E731
+            stop = lambda s, y: szd * y[1] - eps
             stop.terminal, stop.direction = True, -1
             events.append(stop)
         elif fb > 0:  # slow and slipping: stick when the force falls within breakaway,
-            grip = lambda s, y: fb - abs(f_req(s, y[0], outside))  # noqa: E731
+            grip = lambda s, y: fb - abs(f_req(s, y[0], outside))
             grip.terminal, grip.direction = True, 1
-            leave = lambda s, y: eps - abs(y[1])  # noqa: E731  # or re-arm on leaving ε
+            leave = lambda s, y: eps - abs(y[1])  # or re-arm on leaving ε
             leave.terminal, leave.direction = True, -1
             events += [grip, leave]
         t_start = t

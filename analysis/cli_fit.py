@@ -1,0 +1,97 @@
+"""`analysis fit`: identify the isolator from run files or CSV, print and save the result."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from analysis.identify.loading import UNITS, load_runs
+from analysis.identify.pipeline import IsolatorFit, identify
+from analysis.identify.report_format import fit_json, format_fit
+from analysis.loop import LoopRun, close_loop
+from analysis.loop.report import add_loop_section, format_loop, loop_json
+from rig.errors import DataError
+from rig.units import to_si
+
+
+def add_fit_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help="identify Eq 10 from base-excited runs (HDF5 or CSV t,u,x)")
+    p.add_argument("files", nargs="+", type=Path, metavar="RUN.h5|CSV")
+    mass = p.add_mutually_exclusive_group(required=True)
+    mass.add_argument("--mass", type=float, metavar="KG", help="isolated mass, kg")
+    mass.add_argument("--mass-lb", type=float, metavar="LB", help="isolated mass, lb")
+    p.add_argument("--units", choices=UNITS, default=None,
+                   help="CSV displacement units (default: from the header, else m)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON")
+    p.add_argument("--report", type=Path, metavar="DIR",
+                   help="write PNG figures and index.html into DIR")
+    p.add_argument("--no-refine", action="store_true",
+                   help="stop after variable projection (no output-error refinement, no loop)")
+    p.add_argument("--no-loop", action="store_true",
+                   help="skip closing the loop (searching the residual for missing effects)")
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    mass = args.mass if args.mass is not None else float(to_si(args.mass_lb, "lbm"))
+    loaded = load_runs(args.files, mass, args.units)
+    for w in loaded.warnings:
+        print(f"analysis: warning: {w}", file=sys.stderr)
+    start = time.perf_counter()
+
+    def progress(message: str) -> None:
+        print(f"analysis fit [{time.perf_counter() - start:5.1f} s] {message}", file=sys.stderr)
+
+    try:
+        fit = identify(loaded.runs, refine_output_error=not args.no_refine, progress=progress)
+    except ValueError as e:  # data the identification cannot use (e.g. no relative motion)
+        raise DataError(f"cannot identify from {', '.join(map(str, args.files))}: {e}") from e
+    print(format_fit(fit))
+    loop = None
+    if not (args.no_loop or args.no_refine):
+        loop = close_loop(fit.model, loop_runs(fit), progress=progress)
+        print()
+        print(format_loop(loop))
+    if args.json:
+        doc = fit_json(fit)
+        if loop is not None:
+            doc = with_loop(doc, loop_json(loop))
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.report:
+        from analysis.identify.figures import write_report  # matplotlib only when asked
+
+        progress("figures")
+        page = write_report(fit, args.report)
+        if loop is not None:
+            add_loop_section(page, loop)
+        print(f"wrote {page}")
+    return 0
+
+
+def loop_runs(fit: IsolatorFit) -> list[LoopRun]:
+    """The prepared runs as the loop reads them: the same input estimate and derivatives."""
+    return [LoopRun(p.oe, p.oe.motion(p.oe.t, 1), p.zd, p.xdd, p.table.method)
+            for p in fit.prepared]
+
+
+def with_loop(doc: dict, loop: dict) -> dict:
+    """The fit's JSON with the loop's keys; `parameters` become the final model's.
+
+    The loop refits the constants it frees: their values (and std where it fitted them)
+    replace the base fit's; what it held keeps the base fit's entry (and its `held`).
+    """
+    merged = {name: dict(entry) for name, entry in doc["parameters"].items()}
+    for name, entry in loop["parameters"].items():
+        mine = merged.setdefault(name, {"held": False})
+        mine["value"], mine["unit"] = entry["value"], entry["unit"]
+        if entry["std"] is not None:
+            mine["std"] = entry["std"]
+        mine.setdefault("std", None)
+    out = {**doc, **{k: v for k, v in loop.items() if k != "parameters"}}
+    out["parameters_base_model"] = doc["parameters"]
+    out["parameters"] = merged
+    return out

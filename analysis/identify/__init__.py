@@ -1,0 +1,1 @@
+"""Identification of the isolator: equation error, variable projection, output error."""

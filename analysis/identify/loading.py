@@ -1,0 +1,176 @@
+"""Measured base-excited runs from rig HDF5 run files and from other rigs' CSV.
+
+CSV: a header row, then one sample per row; columns `t` (s), `u` (table) and
+`x` (mass absolute displacement), in metres unless told otherwise. A header
+may carry its unit in brackets (`u [in]`, as `sim response` writes); it must
+then agree with `--units` when both are given. Run files: channels `table_u`
+and `mass_x` (metres), sampled by different sensors, so both are put on one
+uniform grid at the slower channel's rate over the time they share.
+
+Anything unusable raises `DataError` naming the file, the rule and the value;
+anything usable but imperfect (a non-uniform clock that was resampled) is
+returned as a warning for the caller to show.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.identify.pipeline import MeasuredRun
+from rig.errors import DataError
+from rig.runfile import open_run
+from rig.units import to_si
+
+UNITS = ("m", "in")
+MIN_SAMPLES = 200  # the shortest ramp of interest (0.12 s) at 1 kHz plus rests
+MIN_DURATION = 0.2  # s
+JITTER = 0.01  # of the median step: a clock steadier than this is taken as uniform
+HEADER = re.compile(r"^\s*([^\[\]]+?)\s*(?:\[\s*([^\]]+?)\s*\])?\s*$")
+
+
+@dataclass
+class Loaded:
+    """The runs read, and warnings about data that was usable but imperfect."""
+
+    runs: list[MeasuredRun] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loaded:
+    """Read every file (.h5/.hdf5 run files, anything else as CSV); mass in kg."""
+    if not (np.isfinite(mass) and mass > 0):
+        raise DataError(f"mass must be a positive number of kg, got {mass}")
+    out = Loaded()
+    names: set[str] = set()
+    for path in paths:
+        path = Path(path)
+        if not path.exists():
+            raise DataError(f"{path}: no such file")
+        if path.suffix.lower() in (".h5", ".hdf5"):
+            t, u, x = _read_runfile(path, out.warnings)
+        else:
+            t, u, x = _read_csv(path, units)
+        t, u, x = _uniform(path, t, u, x, out.warnings)
+        name = _unique(path.stem, names)
+        out.runs.append(MeasuredRun(name, t, u, x, float(mass)))
+    return out
+
+
+def _unique(stem: str, taken: set[str]) -> str:
+    name, k = stem, 2
+    while name in taken:
+        name, k = f"{stem}-{k}", k + 1
+    taken.add(name)
+    return name
+
+
+def _read_csv(path: Path, units: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if units is not None and units not in UNITS:
+        raise DataError(f"unknown units {units!r} (known: {', '.join(UNITS)})")
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise DataError(f"{path}: empty file")
+    columns = {}
+    for i, h in enumerate(rows[0]):
+        m = HEADER.match(h)
+        if m:
+            columns[m.group(1).lower()] = (i, m.group(2))
+    missing = [c for c in ("t", "u", "x") if c not in columns]
+    if missing:
+        raise DataError(f"{path}: no column {', '.join(repr(c) for c in missing)} (columns: "
+                        f"{', '.join(rows[0])}; base-excited CSV needs t, u, x)")
+    data = {c: _column(path, rows[1:], columns[c][0], c) for c in ("t", "u", "x")}
+    if columns["t"][1] not in (None, "s"):
+        raise DataError(f"{path}: time must be in s, header says {columns['t'][1]!r}")
+    out = [data["t"]]
+    for c in ("u", "x"):
+        out.append(np.asarray(to_si(data[c], _unit(path, c, columns[c][1], units)), float))
+    return out[0], out[1], out[2]
+
+
+def _unit(path: Path, column: str, header: str | None, given: str | None) -> str:
+    if header is not None and header not in UNITS:
+        raise DataError(f"{path}: column {column} in unknown units {header!r} "
+                        f"(known: {', '.join(UNITS)})")
+    if header is not None and given is not None and header != given:
+        raise DataError(f"{path}: column {column} is in {header} but --units says {given}")
+    return header or given or "m"
+
+
+def _column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
+    values = np.empty(len(rows))
+    for k, row in enumerate(rows):
+        try:
+            values[k] = float(row[i])
+        except (IndexError, ValueError):
+            cell = row[i] if i < len(row) else "(missing)"
+            raise DataError(f"{path}: row {k + 2}, column {name}: {cell!r} is not a number"
+                            ) from None
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise DataError(f"{path}: row {bad[0] + 2}, column {name}: {values[bad[0]]} "
+                        f"({bad.size} non-finite values)")
+    return values
+
+
+def _read_runfile(path: Path, warnings: list[str]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    run = open_run(path, raw=False)
+    if not run.status.complete:
+        raise DataError(f"{path}: run is not complete (exit status {run.status.state}"
+                        + (f": {run.status.reason}" if run.status.reason else "") + ")")
+    for name in ("table_u", "mass_x"):
+        if name not in run.channels:
+            raise DataError(f"{path}: no channel {name!r} (channels: "
+                            f"{', '.join(run.channels)})")
+        if run.channels[name].units != "m":
+            raise DataError(f"{path}: channel {name} in {run.channels[name].units}, expected m")
+    cu, cx = run.channels["table_u"], run.channels["mass_x"]
+    for c in (cu, cx):
+        _check_time(path, c.time, c.name)
+    if run.gaps:
+        warnings.append(f"{path}: {sum(g.count for g in run.gaps)} samples missing in "
+                        f"{len(run.gaps)} gaps; interpolated across them")
+    # the sensors run on their own clocks: one grid at the slower rate over the common span
+    dt = max(float(np.median(np.diff(cu.time))), float(np.median(np.diff(cx.time))))
+    t0, t1 = max(cu.time[0], cx.time[0]), min(cu.time[-1], cx.time[-1])
+    if t1 - t0 < MIN_DURATION:
+        raise DataError(f"{path}: the two channels overlap for {max(t1 - t0, 0):.3f} s, "
+                        f"need {MIN_DURATION} s")
+    t = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1)
+    return t, np.interp(t, cu.time, cu.value), np.interp(t, cx.time, cx.value)
+
+
+def _check_time(path: Path, t: np.ndarray, what: str) -> None:
+    if t.size < MIN_SAMPLES:
+        raise DataError(f"{path}: {what} has {t.size} samples, need at least {MIN_SAMPLES}")
+    step = np.diff(t)
+    bad = np.flatnonzero(step <= 0)
+    if bad.size:
+        k = int(bad[0])
+        kind = "duplicate" if step[k] == 0 else "decreasing"
+        raise DataError(f"{path}: {what}: {kind} time at sample {k + 1} "
+                        f"(t = {t[k + 1]:.6g} s after {t[k]:.6g} s)")
+    if t[-1] - t[0] < MIN_DURATION:
+        raise DataError(f"{path}: {what} lasts {t[-1] - t[0]:.3g} s, need {MIN_DURATION} s")
+
+
+def _uniform(path: Path, t: np.ndarray, u: np.ndarray, x: np.ndarray, warnings: list[str]
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples on a uniform grid: as they are if the clock is steady, else resampled."""
+    _check_time(path, t, "time")
+    step = np.diff(t)
+    dt = float(np.median(step))
+    if np.max(np.abs(step - dt)) <= JITTER * dt:
+        return t[0] + dt * np.arange(t.size), u, x
+    dt = float(t[-1] - t[0]) / (t.size - 1)  # a jittered clock's mean step is its rate
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
+    warnings.append(f"{path}: time steps vary from {step.min() * 1e3:.4g} to "
+                    f"{step.max() * 1e3:.4g} ms; resampled linearly at {dt * 1e3:.4g} ms")
+    return grid, np.interp(grid, t, u), np.interp(grid, t, x)

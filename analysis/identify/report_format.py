@@ -1,0 +1,125 @@
+"""The identified isolator as text (SI or the report's units) and as JSON."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from analysis.identify.output_error import Z95
+from analysis.identify.pipeline import IsolatorFit
+from analysis.model.terms import kind
+from rig.units import from_si, us_unit
+
+SHOWN = ("k1", "k2", "c1", "c2", "alpha", "beta", "delta", "F_break", "epsilon")
+
+
+def _convert(value: float, si_unit: str, units: str) -> tuple[float, str]:
+    if units == "si":
+        return value, si_unit
+    u = us_unit(si_unit)
+    return float(from_si(value, u)), u
+
+
+def _cell(value: float | None, width: int = 11) -> str:
+    return " " * width if value is None else f"{value:>{width}.4g}"
+
+
+def format_constants(fit: IsolatorFit, units: str = "us") -> str:
+    """Table 1's shape: the reported estimate ± 95 %, each run, the projection, appendix A."""
+    values, stds = fit.values_std()
+    si_units = fit.model.units()
+    runs = list(fit.per_run)
+    label = "the report's units" if units == "us" else "SI"
+    head = (f"{'constant':<9}{'unit':<11}{'estimate':>11}{'± 95 %':>10}"
+            + "".join(f"{'run ' + r:>11}" for r in runs) + f"{'varpro':>11}{'app. A':>11}")
+    title = (f"identified isolator, {label} ({fit.estimate}; varpro = equation error with "
+             "alpha, beta, delta searched; app. A = the report's least squares at its "
+             "alpha, beta, delta)")
+    lines = [title, head]
+    app_a, proj = fit.appendix_a.as_dict(), fit.projection.model.parameters()
+    for n in SHOWN:
+        v, unit = _convert(values[n], si_units[n], units)
+        ci = "held" if n in fit.held else (
+            f"{_convert(stds[n], si_units[n], units)[0] * Z95:.2g}" if n in stds else "")
+        row = f"{n:<9}{unit:<11}{v:>11.4g}{ci:>10}"
+        for r in runs:
+            row += _cell(_convert(fit.per_run[r].model.parameters()[n], si_units[n], units)[0])
+        row += _cell(_convert(proj[n], si_units[n], units)[0])
+        row += _cell(_convert(app_a[n], si_units[n], units)[0] if n in app_a else None)
+        lines.append(row)
+    if fit.held:
+        lines.append(f"held at the start value (not determined by these runs): "
+                     f"{', '.join(fit.held)}")
+    return "\n".join(lines)
+
+
+def format_errors(fit: IsolatorFit, units: str = "us") -> str:
+    """Per run: NRMSE of z, ż, ẍ, the equation-error force and residual / sensor noise."""
+    f_unit = "N" if units == "si" else "lb"
+    lines = [(f"{'run':<8}{'NRMSE z':>9}{'NRMSE ż':>9}{'NRMSE ẍ':>9}"
+              f"{'force RMS':>13}{'resid/noise':>13}")]
+    for r, e in fit.errors.items():
+        lines.append(f"{r:<8}{e.z:>9.2%}{e.zd:>9.2%}{e.xdd:>9.2%}"
+                     f"{_convert(e.force_rms, 'N', units)[0]:>10.4g} {f_unit:<2}"
+                     f"{e.residual_over_noise:>13.3f}")
+    a = fit.appendix_a
+    lines.append(f"appendix A: sigma^2 = {a.sigma2:.4g} N^2, condition number of A = "
+                 f"{a.condition:.3g}, {a.samples} samples with relative motion")
+    for r, names in fit.flagged.items():
+        lines.append(f"run {r} differs significantly from the other runs in "
+                     f"{', '.join(names)} (as the report's run C)")
+    return "\n".join(lines)
+
+
+def format_fit(fit: IsolatorFit) -> str:
+    """Both tables, in the report's units and in SI, and the error per run."""
+    return "\n\n".join([format_constants(fit, "us"), format_constants(fit, "si"),
+                        format_errors(fit, "us")])
+
+
+def _entry(value: float, std: float | None, unit: str, held: bool = False) -> dict:
+    out: dict = {"value": float(value), "std": None if std is None else float(std),
+                 "unit": unit}
+    if std is not None:
+        out["ci95"] = [float(value - Z95 * std), float(value + Z95 * std)]
+    if held:
+        out["held"] = True
+    return out
+
+
+def fit_json(fit: IsolatorFit) -> dict:
+    """parameters, runs, error, model, …: the machine-readable result (SI)."""
+    values, stds = fit.values_std()
+    si_units = fit.model.units()
+    params = {n: _entry(values[n], stds.get(n), si_units[n], n in fit.held) for n in values}
+    runs = {r: {n: _entry(v, s, si_units[n]) for n, v, s in zip(f.names, f.values, f.std)}
+            for r, f in fit.per_run.items()}
+    error = {r: {"nrmse_z": e.z, "nrmse_zd": e.zd, "nrmse_xdd": e.xdd,
+                 "force_rms_N": e.force_rms, "residual_over_noise": e.residual_over_noise}
+             for r, e in fit.errors.items()}
+    model = [{"name": t.name, "kind": t.kind, "formula": kind(t.kind).formula,
+              "gated_by_dead_band": t.is_gated} for t in fit.model.terms]
+    a, p = fit.appendix_a, fit.projection
+    return {"parameters": params, "runs": runs, "error": error, "model": model,
+            "estimate": fit.estimate, "held": list(fit.held), "flagged_runs": fit.flagged,
+            "appendix_a": {"names": list(a.names), "values": a.as_dict(),
+                           "std": dict(zip(a.names, a.std.tolist())), "sigma2_N2": a.sigma2,
+                           "A": a.A.tolist(), "b": a.b.tolist(),
+                           "covariance": a.covariance.tolist(), "condition": a.condition,
+                           "correlation": np.nan_to_num(a.correlation).tolist(),
+                           "samples": a.samples},
+            "variable_projection": {"shapes": p.shapes, "values": p.fit.as_dict(),
+                                    "sigma2_N2": p.fit.sigma2, "evaluations": p.evaluations},
+            "preparation": {pr.run.name: {"differentiation": pr.method,
+                                          "cutoff_hz": pr.settings.get("cutoff_hz"),
+                                          "sigma_x_m": pr.sigma_x,
+                                          "sigma_u_m": pr.table.sigma,
+                                          "table_motion": pr.table.method,
+                                          "moving_fraction": float(pr.active.mean())}
+                            for pr in fit.prepared}}
+
+
+def write_json(fit: IsolatorFit, path: Path) -> None:
+    Path(path).write_text(json.dumps(fit_json(fit), indent=2), encoding="utf-8")

@@ -1,0 +1,9 @@
+"""Closing the loop: find what the fitted model lacks from its residual, add it, refit."""
+
+from analysis.loop.candidates import CANDIDATES, Candidate
+from analysis.loop.close import LoopResult, LoopRun, Step, close_loop
+from analysis.loop.evidence import Diagnosis, diagnose
+from analysis.loop.refit import Fit, Hypothesis, predict, refit
+
+__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "Fit", "Hypothesis", "LoopResult", "LoopRun",
+           "Step", "close_loop", "diagnose", "predict", "refit"]

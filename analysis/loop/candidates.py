@@ -1,0 +1,120 @@
+"""The library of physical effects the loop may add to a fitted isolator model.
+
+Each candidate is one effect with a physical reason, the parameter it adds (a
+force term of `analysis.model.terms`, or a parameter of the mass sensor's
+output map) and a *typical size*: the magnitude at which the effect would be
+just worth naming for a 6000 lb mass on a liquid spring. The typical size
+scales the search, sets the finite-difference step of the score test, and is
+what keeps look-alikes apart: a candidate is sized by its physics, not free to
+take whatever value soaks up the residual.
+
+The names are the product's vocabulary for effects (JSON `effects_added`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.model.isolator import IsolatorModel, Term
+
+SENSOR_GAIN = "sensor_gain"
+SENSOR_DELAY = "sensor_delay"
+SENSOR_PARAMETERS = (SENSOR_GAIN, SENSOR_DELAY)
+# The fluid heats by `a ż²` and cools with `tau`: a = c1/C_th with ~7.5 kJ/K of fluid and
+# casing; tau, minutes for a warm casing. Only their product with c_T is seen in a short
+# campaign, so they are held at these values and c_T is fitted.
+THERMAL_SHAPE = (0.8, 600.0)  # K s/m², s
+HYSTERESIS_SHAPE = (60.0, 20.0)  # Bouc–Wen a, b in 1/m: r saturates at 1/(a+b) = 12.5 mm
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """An effect the model may lack."""
+
+    name: str
+    explanation: str
+    parameter: str  # name of the parameter it adds
+    unit: str
+    signature: str  # the variable its residual shows against: z, zd, t, x, xd
+    term_kind: str = ""  # "" for a sensor effect
+    shape: tuple[float, ...] = ()
+    sign: int = 0  # +1 / −1 where physics fixes the sign, 0 where either is possible
+
+    def typical(self, model: IsolatorModel) -> float:
+        """The physics-sized magnitude of this effect for `model` (SI)."""
+        p = model.parameters()
+        k1, c1 = abs(p.get("k1", 7.0e4)), abs(p.get("c1", 6.0e3))
+        return {
+            "coulomb_friction": 100.0,  # N, the report's breakaway force is 92 N
+            "asymmetric_damping": 0.2 * c1,
+            "quadratic_damping": 0.2 * c1,  # equals 0.2 c1 ż at 1 m/s
+            "cubic_stiffness": 20.0 * k1,  # equals 0.2 k1 z at z = 0.1 m
+            "asymmetric_stiffness": 0.2 * k1,
+            "preload": 100.0,
+            "force_offset": 100.0,
+            "thermal_damping_drift": 0.05 * c1,  # per K
+            "hysteresis": 0.3 * k1,
+            SENSOR_DELAY: 1e-3,  # s, one sample at 1 kHz
+            SENSOR_GAIN: 0.01,
+        }[self.name]
+
+    def bounds(self, model: IsolatorModel) -> tuple[float, float]:
+        big = 50.0 * self.typical(model)  # an effect 50 times "worth naming" is another model
+        return (0.0 if self.sign > 0 else -big, 0.0 if self.sign < 0 else big)
+
+    def add_to(self, model: IsolatorModel) -> tuple[IsolatorModel, str]:
+        """The model with this effect at zero, and the name of the parameter to fit.
+
+        A term the model already carries (the report's c3 and γ at zero) is reused.
+        """
+        if not self.term_kind:
+            return model, self.parameter
+        for t in model.terms:
+            if t.kind == self.term_kind and t.shape == self.shape:
+                return model, t.name
+        return model.with_terms(Term(self.term_kind, self.parameter, 0.0, self.shape)), \
+            self.parameter
+
+
+CANDIDATES: dict[str, Candidate] = {
+    c.name: c
+    for c in (
+        Candidate("coulomb_friction", "dry friction of the rod seals: a constant force against "
+                  "the motion, a step in the restoring force at ż = 0", "c3", "N", "zd",
+                  "coulomb", sign=+1),
+        Candidate("asymmetric_damping", "a check valve in the piston head: more damping in "
+                  "extension than in compression", "c_ext", "N/(m/s)", "zd",
+                  "extension_damper"),
+        Candidate("quadratic_damping", "turbulent flow through the orifice: force ∝ ż|ż|",
+                  "c_q", "N/(m/s)^2", "zd", "quadratic_damper", sign=+1),
+        Candidate("cubic_stiffness", "hardening of the compressed fluid at large stroke: z³",
+                  "k3", "N/m^3", "z", "cubic_spring"),
+        Candidate("asymmetric_stiffness", "the rod displaces fluid in compression only: "
+                  "stiffer one way than the other", "k_comp", "N/m", "z", "compression_spring"),
+        Candidate("preload", "fluid preload: a force step γ sgn(z) at the edge of the dead "
+                  "band", "gamma", "N", "z", "preload", sign=+1),
+        Candidate("force_offset", "a constant force: a tilted track, a cable, a zero error",
+                  "F0", "N", "t", "force_offset"),
+        Candidate("thermal_damping_drift", "viscosity falls as the fluid heats from the energy "
+                  "the damper dissipates: damping drifts down within and across runs",
+                  "c_T", "N/(m/s)/K", "t", "thermal_damper", THERMAL_SHAPE, sign=-1),
+        Candidate("hysteresis", "rate-independent hysteresis (Bouc–Wen) of seals and "
+                  "mountings: two forces at one (z, ż)", "k_h", "N/m", "z", "bouc_wen",
+                  HYSTERESIS_SHAPE, sign=+1),
+        Candidate(SENSOR_DELAY, "one sensor lags the other: the residual follows the mass "
+                  "velocity", SENSOR_DELAY, "s", "xd"),
+        Candidate(SENSOR_GAIN, "a scale error of the mass sensor: the residual follows x",
+                  SENSOR_GAIN, "1", "x"),
+    )
+}
+
+
+def signature_variable(name: str, z: np.ndarray, zd: np.ndarray, x: np.ndarray,
+                       t: np.ndarray) -> np.ndarray:
+    """The variable a candidate's residual is plotted and binned against."""
+    sig = CANDIDATES[name].signature
+    if sig == "xd":
+        return np.gradient(x, t)
+    return {"z": z, "zd": zd, "x": x, "t": t}[sig]

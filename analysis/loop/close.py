@@ -1,0 +1,382 @@
+"""Close the loop: residual → the effect the model lacks → add it → refit → repeat.
+
+Each step:
+1. diagnose the residual of the current fit (`evidence.diagnose`); a residual at
+   the sensor noise that is white ends the loop;
+2. score every candidate not yet added by the Lagrange-multiplier test from
+   the fitted Jacobian, and shortlist the strongest;
+3. refit each shortlisted candidate with every fitted constant free (output
+   error, all runs), and keep those whose parameter is significant (|t| > 3
+   with the residual's autocorrelation counted), not a look-alike of a fitted
+   constant (|correlation| < 0.99) and that cut the residual by at least 2 %;
+4. validate the best across runs: leave each run out, fit with and without the
+   candidate on the others, predict the one left out. A candidate that does not
+   predict the held-out runs better is fitting noise and is refused;
+5. add it, and go round again.
+
+When nothing passes but the residual is still well above the noise or not
+white, the loop says "unexplained structure" and where it concentrates
+rather than forcing an effect.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.identify.output_error import RunData, noise_sigma
+from analysis.loop.candidates import CANDIDATES, Candidate
+from analysis.loop.evidence import Diagnosis, diagnose
+from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit, score
+from analysis.loop.regressors import campaign_regressors
+from analysis.model.isolator import IsolatorModel
+from analysis.table_motion import estimate_table_motion
+
+BASE_FREE = ("k1", "k2", "c1", "c2", "alpha", "beta")
+LINEAR = ("k1", "k2", "c1", "c2")
+SHORTLIST = 3
+MIN_SCORE = 10.83  # χ²₁ at 0.1 %
+MIN_T = 3.0
+MAX_CORRELATION = 0.99
+MIN_DROP = 0.02  # of the residual sum of squares
+NOISE_LEVEL = 1.05  # residual/noise at or below which the model is "at the noise"
+UNEXPLAINED_LEVEL = 1.3
+MAX_EFFECTS = 4
+
+
+@dataclass(frozen=True)
+class LoopRun:
+    """One measured run for the loop: the fit's RunData plus measured derivatives (SI)."""
+
+    data: RunData
+    ud: np.ndarray  # table velocity (from the smoothed input), m/s
+    zd: np.ndarray | None = None  # measured relative velocity, m/s
+    xdd: np.ndarray | None = None  # measured mass acceleration, m/s²
+    input_method: str = ""  # how the table motion was estimated
+
+    @classmethod
+    def from_measurement(cls, name: str, t: np.ndarray, u: np.ndarray, x: np.ndarray,
+                         zd: np.ndarray | None = None, xdd: np.ndarray | None = None
+                         ) -> LoopRun:
+        """A run from sampled u and x (m): input estimated, x noise from the data."""
+        table = estimate_table_motion(t, u)
+        data = RunData(name, np.asarray(t, float), table.motion, np.asarray(x, float),
+                       noise_sigma(x))
+        return cls(data, table.motion(t, 1), zd, xdd, table.method)
+
+
+@dataclass(frozen=True)
+class Step:
+    added: str
+    parameter: str
+    value: float  # SI
+    std: float
+    unit: str
+    evidence: dict[str, object]
+    error_before: dict[str, dict[str, float]]
+    error_after: dict[str, dict[str, float]]
+    residual_before: np.ndarray  # concatenated, for the evidence figure
+    signature_before: np.ndarray
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    base: Fit
+    final: Fit
+    steps: tuple[Step, ...]
+    diagnosis_before: Diagnosis
+    diagnosis_after: Diagnosis
+    error_before: dict[str, dict[str, float]]
+    error_after: dict[str, dict[str, float]]
+    unexplained: bool
+    description: str
+    refused: tuple[dict[str, object], ...] = field(default=())
+
+    @property
+    def effects_added(self) -> list[str]:
+        return [s.added for s in self.steps]
+
+
+def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int = MAX_EFFECTS,
+               progress: Callable[[str], None] = lambda m: None) -> LoopResult:
+    """Refit `model` on the runs, then add effects from the library while the data ask."""
+    data = [r.data for r in runs]
+    h = Hypothesis(model)
+    free = [n for n in BASE_FREE if n in model.parameters() and model.parameters()[n] != 0.0]
+    progress("loop: refitting the base model")
+    fit = _refit(h, data, free, {})
+    base, steps, refused = fit, [], []
+    while len(steps) < max_effects:
+        diag = _diagnose(fit, runs)
+        if diag.residual_over_noise <= NOISE_LEVEL and diag.white:
+            break
+        step, why = _one_step(fit, free, runs, diag, progress)
+        refused.extend(why)
+        if step is None:
+            break
+        steps.append(step[0])
+        fit = step[1]
+        free.append(step[0].parameter)
+    final_diag = _diagnose(fit, runs)
+    unexplained = final_diag.residual_over_noise > UNEXPLAINED_LEVEL or (
+        final_diag.residual_over_noise > NOISE_LEVEL and not final_diag.white)
+    text = (f"residual {final_diag.residual_over_noise:.2f} x the sensor noise, not explained by "
+            f"any candidate; it concentrates at {final_diag.region_text}; "
+            f"{final_diag.band_text}" if unexplained else
+            f"residual {final_diag.residual_over_noise:.2f} x the sensor noise")
+    return LoopResult(base=base, final=fit, steps=tuple(steps),
+                      diagnosis_before=_diagnose(base, runs), diagnosis_after=final_diag,
+                      error_before=run_errors(base, runs), error_after=run_errors(fit, runs),
+                      unexplained=unexplained, description=text, refused=tuple(refused))
+
+
+def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
+              progress: Callable[[str], None]):
+    data = [r.data for r in runs]
+    h = fit.hypothesis
+    tried = set(free)
+    scores: list[tuple[Score, Candidate, Hypothesis]] = []
+    for c in CANDIDATES.values():
+        ch, param = c.add_to(h.model)
+        if param in tried:
+            continue
+        cand_h = Hypothesis(ch, h.sensor_gain, h.sensor_delay)
+        scores.append((score(fit, data, cand_h, param, c.typical(h.model), c.sign), c, cand_h))
+    scores.sort(key=lambda s: -s[0].statistic)
+    progress("loop: predicted residual cut " + ", ".join(
+        f"{c.name} {100 * s.predicted_rss_drop:.1f} %" for s, c, _ in scores[:4]))
+    ee = {c.name: equation_error_drop(cand_h, runs, s.name) for s, c, cand_h in scores}
+    by_ee = sorted((n for n in ee if ee[n] > 0), key=lambda n: -ee[n])[:SHORTLIST - 1]
+    shortlist = [x for x in scores[:SHORTLIST - 1]]
+    shortlist += [x for x in scores if x[1].name in by_ee and x not in shortlist]
+    refused, passing = [], []
+    for s, c, cand_h in shortlist:
+        if s.statistic < MIN_SCORE:
+            refused.append({"candidate": c.name, "reason": f"score {s.statistic:.1f} < "
+                            f"{MIN_SCORE} (χ²₁, 0.1 %)"})
+            continue
+        progress(f"loop: refitting with {c.name}")
+        starts = [cand_h.with_values({s.name: v}) for v in _starts(cand_h, data, s, c)]
+        starts += _equation_error_start(cand_h, runs, s.name, c)
+        fits = [_refit(h0, data, free + [s.name], {s.name: c}) for h0 in starts]
+        cf = min(fits, key=lambda f: f.rss)
+        reason = _significance(fit, cf, s.name)
+        if reason:
+            refused.append({"candidate": c.name, "reason": reason})
+        else:
+            passing.append((cf.rss, s, c, cf))
+    for _, s, c, cf in sorted(passing, key=lambda p: p[0]):
+        progress(f"loop: validating {c.name} on held-out runs")
+        held = _held_out(fit, cf, free, s.name, c, runs)
+        if held["accepted"]:
+            value, std = cf.param(s.name)
+            step = Step(added=c.name, parameter=s.name, value=value, std=std, unit=c.unit,
+                        evidence=_evidence(diag, s, fit, cf, held, c),
+                        error_before=run_errors(fit, runs), error_after=run_errors(cf, runs),
+                        residual_before=np.concatenate(fit.residuals),
+                        signature_before=_signature(fit, runs, c))
+            return (step, cf), refused
+        refused.append({"candidate": c.name, "reason": "does not predict held-out runs better: "
+                        + held["text"]})
+    return None, refused
+
+
+SCAN = (0.3, 1.0, 3.0, 10.0, 30.0)  # multiples of the typical size tried as starts
+
+
+def _starts(h: Hypothesis, data, s: Score, c: Candidate, keep: int = 1) -> list[float]:
+    """Starts for a candidate's refit: the best `keep` of the score's estimate and a scan.
+
+    Friction and dead band make the cost many-valleyed along an effect's size (where
+    the mass sticks moves in steps), so one linearised estimate can start the refit in
+    the wrong valley; one batch of simulations per run checks a few sizes, and the
+    refit starts from the best (several: the best that differ by a factor of two).
+    """
+    lo, hi = c.bounds(h.model)
+    signs = (c.sign,) if c.sign else (1.0, -1.0)
+    trial = [s.predicted_value] + [g * m * c.typical(h.model) for g in signs for m in SCAN]
+    trial = np.clip(np.array(trial, float), lo, hi)
+    pred = predict(h, data, (s.name,), trial[:, None])
+    with np.errstate(over="ignore", invalid="ignore"):
+        cost = sum(np.sum(((p - d.x) / d.sigma_x) ** 2, axis=1) for p, d in zip(pred, data))
+    cost = np.where(np.isfinite(cost), cost, np.inf)  # an unstable trial: damping gone negative
+    starts: list[float] = []
+    for i in np.argsort(cost):
+        v = float(trial[i])
+        if np.isfinite(cost[i]) and all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v)
+                                        for o in starts):
+            starts.append(v)
+        if len(starts) == keep:
+            break
+    return starts or [0.0]
+
+
+def _equation_error(h: Hypothesis, runs: Sequence[LoopRun], names: Sequence[str]):
+    """Appendix A's least squares of the named coefficients (others fixed) on moving samples.
+
+    Returns (names, values, residual sum of squares in N²), or None without measured
+    derivatives.
+    """
+    if any(r.zd is None or r.xdd is None for r in runs):
+        return None
+    model = h.model
+    z = [r.data.x - r.data.motion(r.data.t) for r in runs]
+    Z = campaign_regressors(model, z, [r.zd for r in runs], runs[0].data.dt)
+    zd = np.concatenate([r.zd for r in runs])
+    y = -model.mass * np.concatenate([r.xdd for r in runs])
+    moving = np.abs(zd) > max(2.0 * model.stop_velocity, 1e-3)  # appendix A drops rest
+    cols = [j for j, t in enumerate(model.terms) if t.name in names]
+    fixed = [j for j in range(len(model.terms)) if j not in cols]
+    known = Z[moving][:, fixed] @ np.array([model.terms[j].coef for j in fixed])
+    A, b = Z[moving][:, cols], y[moving] - known
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    rss = float(np.sum((b - A @ coef) ** 2))
+    return [model.terms[j].name for j in cols], coef, rss
+
+
+def equation_error_drop(h: Hypothesis, runs: Sequence[LoopRun], name: str) -> float:
+    """Fraction of the equation-error force residual that adding term `name` removes."""
+    if name not in {t.name for t in h.model.terms}:
+        return 0.0  # a sensor effect: not a force
+    base = [t.name for t in h.model.terms if t.name in LINEAR]
+    without = _equation_error(h, runs, base)
+    with_it = _equation_error(h, runs, base + [name])
+    if without is None or with_it is None or without[2] <= 0:
+        return 0.0
+    return (without[2] - with_it[2]) / without[2]
+
+
+def _equation_error_start(h: Hypothesis, runs: Sequence[LoopRun], name: str, c: Candidate
+                          ) -> list[Hypothesis]:
+    """A start from appendix A's least squares with the candidate's regressor added.
+
+    The fitted constants of the base model have soaked up what the missing effect
+    did, and output error can stay in that valley; the equation-error solution of all
+    linear coefficients together, from the measured z, ż, ẍ, has no valleys. Stateful
+    terms are regressors too (`regressors.campaign_regressors`); sensor effects are not.
+    """
+    if not c.term_kind:
+        return []
+    names = [t.name for t in h.model.terms if t.name in LINEAR or t.coef != 0.0] + [name]
+    solved = _equation_error(h, runs, names)
+    if solved is None:
+        return []
+    values = dict(zip(solved[0], solved[1].tolist()))
+    values[name] = float(np.clip(values[name], *c.bounds(h.model)))
+    if any(values[n] <= 0 for n in LINEAR if n in values):
+        return []  # a negative stiffness or damping: not a start within the refit's bounds
+    return [h.with_values(values)]
+
+
+def _refit(h: Hypothesis, data, names, candidates: dict[str, Candidate],
+           fit_runs=None, max_nfev: int = 40) -> Fit:
+    scales, bounds = [], []
+    for n in names:
+        if n in candidates:
+            c = candidates[n]
+            scales.append(c.typical(h.model))
+            bounds.append(c.bounds(h.model))
+        else:
+            v = abs(h.value(n))
+            scales.append(v)
+            bounds.append((0.02 * v, 50.0 * v))
+    return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
+
+
+def _significance(before: Fit, after: Fit, name: str) -> str:
+    value, std = after.param(name)
+    t = abs(value) / std if std > 0 else np.inf
+    drop = (before.rss - after.rss) / before.rss
+    j = after.names.index(name)
+    others = np.nan_to_num(np.delete(np.abs(after.correlation[j]), j), nan=0.0)
+    worst = int(np.argmax(others)) if others.size else -1
+    if t < MIN_T:
+        return f"not significant: |t| = {t:.1f} < {MIN_T}"
+    if drop < MIN_DROP:
+        return f"cuts the residual by only {100 * drop:.1f} % (< {100 * MIN_DROP:.0f} %)"
+    if worst >= 0 and others[worst] > MAX_CORRELATION:
+        other = [n for n in after.names if n != name][worst]
+        return f"a look-alike of {other}: correlation {others[worst]:.3f}"
+    return ""
+
+
+def _held_out(fit: Fit, cand: Fit, free: list[str], name: str, c: Candidate,
+              runs: Sequence[LoopRun]) -> dict[str, object]:
+    data = [r.data for r in runs]
+    if len(data) < 2:
+        return {"accepted": True, "text": "one run: no held-out validation possible"}
+    base_ss, cand_ss = [], []
+    for k in range(len(data)):
+        others = [i for i in range(len(data)) if i != k]
+        b = _refit(fit.hypothesis, data, free, {}, others, max_nfev=15)
+        a = _refit(cand.hypothesis, data, free + [name], {name: c}, others, max_nfev=15)
+        for h, out in ((b.hypothesis, base_ss), (a.hypothesis, cand_ss)):
+            x = predict(h, data[: k + 1])[k][0]
+            out.append(float(np.sum(((x - data[k].x) / data[k].sigma_x) ** 2)))
+    better = sum(a < b for a, b in zip(cand_ss, base_ss))
+    accepted = sum(cand_ss) < 0.99 * sum(base_ss) and better * 2 >= len(data)
+    rms = [(np.sqrt(b / d.x.size), np.sqrt(a / d.x.size)) for b, a, d in
+           zip(base_ss, cand_ss, data)]
+    text = "; ".join(f"run {d.name}: {b:.2f} -> {a:.2f} x noise" for (b, a), d in zip(rms, data))
+    return {"accepted": accepted, "text": text, "runs_better": better,
+            "heldout_rms_before": [r[0] for r in rms], "heldout_rms_after": [r[1] for r in rms]}
+
+
+def _evidence(diag: Diagnosis, s: Score, before: Fit, after: Fit, held: dict[str, object],
+              c: Candidate) -> dict[str, object]:
+    value, std = after.param(s.name)
+    n, p = after.n_samples, len(after.names)
+    f_stat = (before.rss - after.rss) / (after.rss / max(n - p, 1))
+    return {"statistic": "score (Lagrange multiplier) χ²₁", "value": s.statistic,
+            "rss_drop": (before.rss - after.rss) / before.rss, "F": f_stat,
+            "t": abs(value) / std if std > 0 else None, "signature": c.signature,
+            "explanation": c.explanation, "heldout": held["text"],
+            "residual_before": diag.as_dict()}
+
+
+def _diagnose(fit: Fit, runs: Sequence[LoopRun]) -> Diagnosis:
+    z, zd = _states(fit, runs)
+    return diagnose(fit.residuals, z, zd, [r.ud for r in runs], runs[0].data.dt)
+
+
+def _states(fit: Fit, runs: Sequence[LoopRun]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Measured-side z and ż of each run, from the prediction (free of differentiation noise)."""
+    pred = predict(fit.hypothesis, [r.data for r in runs])
+    z = [p[0] - r.data.motion(r.data.t) for p, r in zip(pred, runs)]
+    return z, [np.gradient(v, r.data.t) for v, r in zip(z, runs)]
+
+
+def _signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.ndarray:
+    z, zd = _states(fit, runs)
+    pred = predict(fit.hypothesis, [r.data for r in runs])
+    out = {"z": z, "zd": zd, "t": [r.data.t for r in runs], "x": [p[0] for p in pred],
+           "xd": [np.gradient(p[0], r.data.t) for p, r in zip(pred, runs)]}[c.signature]
+    return np.concatenate(out)
+
+
+def run_errors(fit: Fit, runs: Sequence[LoopRun]) -> dict[str, dict[str, float]]:
+    """Per run: NRMSE of z, ż, ẍ (fractions), RMS of m(ẍ_meas − ẍ_model) in N, residual/noise."""
+    pred = predict(fit.hypothesis, [r.data for r in runs])
+    m = fit.hypothesis.model.mass
+    out = {}
+    for p, r in zip(pred, runs):
+        t, x = r.data.t, p[0]
+        u = r.data.motion(t)
+        z_meas, z_pred = r.data.x - u, x - u
+        e = {"z": _nrmse(z_pred, z_meas),
+             "residual_over_noise": float(np.sqrt(np.mean(((x - r.data.x) / r.data.sigma_x)
+                                                         ** 2)))}
+        if r.zd is not None and r.xdd is not None:
+            xd = np.gradient(x, t)
+            xdd = np.gradient(xd, t)
+            e["zd"] = _nrmse(xd - r.ud, r.zd)
+            e["xdd"] = _nrmse(xdd, r.xdd)
+            e["force_rms"] = float(m * np.sqrt(np.mean((xdd - r.xdd) ** 2)))
+        out[r.data.name] = e
+    return out
+
+
+def _nrmse(model: np.ndarray, measured: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((model - measured) ** 2)) / np.sqrt(np.mean(measured**2)))

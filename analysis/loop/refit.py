@@ -1,0 +1,236 @@
+"""Output-error fitting for the loop: signed parameters, a sensor map, warm fluid.
+
+A *hypothesis* is an isolator model plus the mass sensor's output map
+x_meas(t) = (1 + g) x(t − d). Its prediction of a campaign simulates the runs
+in the order given and carries the fluid temperature of a thermal term from
+each run into the next (the rests between runs are taken as short against the
+casing's cooling time, minutes). The fit works on parameters divided by their
+size, so signed effects (an offset, a delay, a viscosity that falls) fit as
+easily as positive ones, and returns the covariance from the Jacobian with the
+residual's autocorrelation accounted for: residual samples 1 ms apart are not
+independent, and pretending they were would make every effect "significant".
+
+The score test asks, from the fitted Jacobian alone, how much a candidate
+parameter added at zero would reduce the residual after every fitted
+parameter readjusts (the Lagrange-multiplier test): the cheap first look that
+decides which candidates earn a full refit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from analysis.identify.output_error import RunData, initial_offset
+from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS
+from analysis.model.isolator import IsolatorModel
+from analysis.simulate import simulate_batch
+
+UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
+FD_STEP = 3e-3  # of a parameter's size: above the integrator's noise, below curvature
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A model of the isolator and of the mass sensor."""
+
+    model: IsolatorModel
+    sensor_gain: float = 0.0  # g, 1
+    sensor_delay: float = 0.0  # d, s
+
+    def value(self, name: str) -> float:
+        if name in SENSOR_PARAMETERS:
+            return getattr(self, name)
+        return self.model.parameters()[name]
+
+    def with_values(self, values: dict[str, float]) -> Hypothesis:
+        sensor = {k: v for k, v in values.items() if k in SENSOR_PARAMETERS}
+        rest = {k: v for k, v in values.items() if k not in SENSOR_PARAMETERS}
+        return replace(self, model=self.model.with_parameters(**rest), **sensor)
+
+
+def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
+            rows: np.ndarray | None = None) -> list[np.ndarray]:
+    """Predicted x_meas (R, n_k) of each run for R value rows of `names` (default: h itself)."""
+    names = tuple(names)
+    rows = np.zeros((1, 0)) if rows is None else np.atleast_2d(rows)
+    idx = h.model.vector_index()
+    V = np.tile(h.model.vector(), (rows.shape[0], 1))
+    gain = np.full(rows.shape[0], h.sensor_gain)
+    delay = np.full(rows.shape[0], h.sensor_delay)
+    for j, n in enumerate(names):
+        if n == SENSOR_GAIN:
+            gain = rows[:, j]
+        elif n == SENSOR_DELAY:
+            delay = rows[:, j]
+        else:
+            V[:, idx[n]] = rows[:, j]
+    thermal = [(j, t.shape) for j, t in enumerate(h.model.terms) if t.kind == "thermal_damper"]
+    S0 = np.zeros((rows.shape[0], len(h.model.terms)))
+    out = []
+    for run in runs:
+        # each row starts at rest where its own sensor map says the mass was
+        x = np.empty((V.shape[0], run.t.size))
+        starts = np.array([initial_offset(run, g) for g in gain])
+        zd_all = np.empty_like(x)
+        for z0 in np.unique(starts):
+            rows_z0 = starts == z0
+            b = simulate_batch(h.model, V[rows_z0], run.motion, duration=run.t[-1] - run.t[0],
+                               dt=run.dt, t0=run.t[0], s0=S0[rows_z0], z0=z0)
+            x[rows_z0] = b.z + b.u
+            zd_all[rows_z0] = b.zd
+        out.append(np.stack([(1.0 + g) * np.interp(run.t - d, run.t, xr)
+                             for g, d, xr in zip(gain, delay, x)]))
+        for j, (heating, tau) in thermal:
+            S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
+    return out
+
+
+def fluid_temperature_after(theta0: np.ndarray, zd: np.ndarray, dt: float, heating: float,
+                            tau: float) -> np.ndarray:
+    """θ at the end of a run: θ' = a ż² − θ/τ solved exactly for the sampled ż (R, n).
+
+    A row that diverged heats without bound (inf): the fit treats its run as unstable.
+    """
+    n = zd.shape[1]
+    decay = np.exp(-dt * np.arange(n - 1, -1, -1) / tau)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return theta0 * np.exp(-dt * (n - 1) / tau) + heating * dt * (zd**2 @ decay)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A fitted hypothesis and its statistics; values and std in SI."""
+
+    hypothesis: Hypothesis
+    names: tuple[str, ...]
+    values: np.ndarray
+    std: np.ndarray
+    correlation: np.ndarray
+    residuals: tuple[np.ndarray, ...]  # per run, in units of the sensor noise
+    jacobian: np.ndarray  # d residual / d (value / scale), at the optimum
+    scales: np.ndarray
+    evaluations: int
+
+    @property
+    def rss(self) -> float:
+        return float(sum(r @ r for r in self.residuals))
+
+    @property
+    def n_samples(self) -> int:
+        return int(sum(r.size for r in self.residuals))
+
+    @property
+    def residual_over_noise(self) -> float:
+        """RMS of (x_pred − x_meas)/σ_x: 1 for a right model."""
+        return float(np.sqrt(self.rss / self.n_samples))
+
+    def param(self, name: str) -> tuple[float, float]:
+        j = self.names.index(name)
+        return float(self.values[j]), float(self.std[j])
+
+
+def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
+          scales: Sequence[float], bounds: Sequence[tuple[float, float]],
+          fit_runs: Sequence[int] | None = None, max_nfev: int = 40) -> Fit:
+    """Least squares of the named parameters on the runs `fit_runs` (default all)."""
+    names = tuple(names)
+    scales = np.asarray(scales, float)
+    use = list(range(len(runs))) if fit_runs is None else list(fit_runs)
+    last = max(use) + 1  # runs after the last fitted one cannot change it
+    start = np.array([h.value(n) for n in names]) / scales
+    lo = np.array([b[0] for b in bounds]) / scales
+    hi = np.array([b[1] for b in bounds]) / scales
+    start = np.clip(start, lo, hi)
+    cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def both(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = theta.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = _residual_and_jacobian(h, runs[:last], names, theta, scales, use)
+        return cache[key]
+
+    sol = least_squares(lambda th: both(th)[0], start, jac=lambda th: both(th)[1],
+                        bounds=(lo, hi), method="trf", max_nfev=max_nfev)
+    values = sol.x * scales
+    fitted = h.with_values(dict(zip(names, values.tolist())))
+    r, J = both(sol.x)
+    per_run = _split(r, [runs[k].t.size for k in use])
+    cov = covariance(r, J, per_run) * np.outer(scales, scales)
+    # a direction the data do not determine can come out of pinv slightly negative
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    corr[~np.isfinite(corr)] = np.nan  # a constant the data do not determine: no correlation
+    corr = np.clip(corr, -1.0, 1.0)  # a clamped tiny variance must not read as |ρ| > 1
+    return Fit(fitted, names, values, std, corr, tuple(per_run), J, scales, int(sol.nfev))
+
+
+def _residual_and_jacobian(h, runs, names, theta, scales, use):
+    steps = FD_STEP * np.maximum(np.abs(theta), 1.0)
+    rows = np.tile(theta, (len(names) + 1, 1))
+    rows[1:] += np.diag(steps)
+    with np.errstate(over="ignore", invalid="ignore"):
+        pred = predict(h, runs, names, rows * scales)
+        res = [(pred[k][0] - runs[k].x) / runs[k].sigma_x for k in use]
+        jac = [((pred[k][1:] - pred[k][0]) / runs[k].sigma_x / steps[:, None]).T for k in use]
+    # a trial that makes the model unstable (damping driven negative) must look bad, not
+    # stop the search
+    return (np.nan_to_num(np.concatenate(res), nan=UNSTABLE, posinf=UNSTABLE, neginf=-UNSTABLE),
+            np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0))
+
+
+def _split(r: np.ndarray, sizes: Sequence[int]) -> list[np.ndarray]:
+    return np.split(r, np.cumsum(sizes)[:-1])
+
+
+def covariance(r: np.ndarray, J: np.ndarray, per_run: Sequence[np.ndarray]) -> np.ndarray:
+    """σ²(JᵀJ)⁻¹, inflated by (1 + ρ₁)/(1 − ρ₁) for lag-1 autocorrelation ρ₁ of the residual."""
+    dof = max(r.size - J.shape[1], 1)
+    s2 = float(r @ r / dof)
+    rho = lag1(per_run)
+    inflation = (1 + rho) / (1 - rho) if rho > 0 else 1.0
+    return s2 * inflation * np.linalg.pinv(J.T @ J)
+
+
+def lag1(per_run: Sequence[np.ndarray]) -> float:
+    num = sum(float(r[1:] @ r[:-1]) for r in per_run)
+    den = sum(float(r @ r) for r in per_run)
+    return min(num / den, 0.99) if den > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Score:
+    """What adding a parameter at zero would do, predicted from the Jacobian."""
+
+    name: str
+    statistic: float  # LM: predicted RSS reduction over the residual variance, χ²₁ under H0
+    predicted_value: float  # SI
+    predicted_rss_drop: float  # fraction of the current RSS
+
+
+def score(fit: Fit, runs: Sequence[RunData], candidate_h: Hypothesis, parameter: str,
+          typical: float, sign: int) -> Score:
+    """Lagrange-multiplier test of `parameter` (zero in `candidate_h`) against `fit`."""
+    n_runs = len(fit.residuals)
+    pred = predict(candidate_h, runs[:n_runs], (parameter,), np.array([[0.0], [typical]]))
+    col = np.concatenate([(p[1] - p[0]) / run.sigma_x for p, run in zip(pred, runs)])
+    r = np.concatenate(fit.residuals)
+    J = fit.jacobian
+    proj = col - J @ np.linalg.lstsq(J, col, rcond=None)[0]
+    denom = float(proj @ proj)
+    if denom <= 0.0:
+        return Score(parameter, 0.0, 0.0, 0.0)
+    step = -float(proj @ r) / denom  # in units of `typical`
+    if sign and np.sign(step) != sign:
+        return Score(parameter, 0.0, step * typical, 0.0)
+    drop = float((proj @ r) ** 2 / denom)
+    # under the test's null (the model right but for this parameter) the residual is white
+    # noise, so σ² is not inflated here; the refit's t-statistic is, and validation follows
+    s2 = fit.rss / max(r.size - J.shape[1], 1)
+    return Score(parameter, drop / s2, step * typical, drop / fit.rss)
+

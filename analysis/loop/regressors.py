@@ -1,0 +1,58 @@
+"""Regressors of every term from measured z and ż, stateful terms included.
+
+A stateful term's state is driven by the motion alone (Bouc–Wen r' = ż − a|ż|r
+− bż|r|; fluid temperature θ' = aż² − θ/τ), so along a measured ż it can be
+integrated from the data, and the term becomes a linear regressor like any
+other: coefficient × basis(z, ż, state). The fluid temperature carries from
+one run into the next, as the simulator's prediction of a campaign does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numba import njit
+
+from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import basis, state_rate
+
+
+@njit(cache=True)
+def _series(code, gated, a, b, c, z, zd, delta, dt, s0, out):
+    """Fill `out` with one term's basis along (z, ż); return the state at the end."""
+    s = s0
+    for i in range(z.shape[0]):
+        outside = abs(z[i]) > delta if delta > 0.0 else True
+        sz = 1.0 if z[i] > 0 else (-1.0 if z[i] < 0 else 0.0)
+        szd = 1.0 if zd[i] > 0 else (-1.0 if zd[i] < 0 else 0.0)
+        if gated and not outside:
+            out[i] = 0.0
+        else:
+            out[i] = basis(code, z[i], zd[i], sz, szd, s, a, b, c)
+        # midpoint step of the state along the sampled motion
+        k1 = state_rate(code, z[i], zd[i], s, 1.0, a, b, c)
+        k2 = state_rate(code, z[i], zd[i], s + 0.5 * dt * k1, 1.0, a, b, c)
+        s = s + dt * k2
+    return s
+
+
+def campaign_regressors(model: IsolatorModel, z: Sequence[np.ndarray],
+                        zd: Sequence[np.ndarray], dt: float) -> np.ndarray:
+    """Z (Σn, J): each term's basis on every sample of the runs, in order."""
+    codes, gated = model.structure()
+    state = np.zeros(len(model.terms))
+    blocks = []
+    for zr, zdr in zip(z, zd):
+        zr, zdr = np.ascontiguousarray(zr, float), np.ascontiguousarray(zdr, float)
+        Z = np.empty((zr.size, len(model.terms)))
+        for j, t in enumerate(model.terms):
+            shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
+            col = np.empty(zr.size)
+            end = _series(codes[j], gated[j], *shape, zr, zdr, model.dead_band, dt, state[j],
+                          col)
+            Z[:, j] = col
+            if t.kind == "thermal_damper":  # the fluid stays warm into the next run
+                state[j] = end
+        blocks.append(Z)
+    return np.vstack(blocks)

@@ -1,0 +1,139 @@
+"""The loop's result for people and programs: text, JSON and evidence figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from analysis.loop.close import LoopResult, Step
+from analysis.loop.refit import Fit
+
+# the model's own term coefficients are reported with the loop's effects
+UNIT_OF_SENSOR = {"sensor_gain": "1", "sensor_delay": "s"}
+
+
+def parameters_json(fit: Fit) -> dict[str, dict[str, float | str | None]]:
+    """Every parameter of the final hypothesis: value (SI), std where fitted, unit."""
+    model = fit.hypothesis.model
+    units = model.units()
+    out: dict[str, dict[str, float | str | None]] = {}
+    for name, value in model.parameters().items():
+        out[name] = {"value": value, "std": None, "unit": units[name]}
+    for name, unit in UNIT_OF_SENSOR.items():
+        value = fit.hypothesis.value(name)
+        if value != 0.0 or name in fit.names:
+            out[name] = {"value": value, "std": None, "unit": unit}
+    for name, value, std in zip(fit.names, fit.values, fit.std):
+        out[name]["value"] = float(value)
+        out[name]["std"] = float(std) if np.isfinite(std) else None
+    return out
+
+
+def loop_json(result: LoopResult) -> dict[str, object]:
+    """The loop's JSON: `loop`, `effects_added`, `error_before`, `error_after`, …"""
+    return {
+        "loop": [_step_json(s) for s in result.steps],
+        "effects_added": result.effects_added,
+        "error_before": result.error_before,
+        "error_after": result.error_after,
+        "residual_before": result.diagnosis_before.as_dict(),
+        "residual_after": result.diagnosis_after.as_dict(),
+        "unexplained": {"value": result.unexplained, "description": result.description},
+        "refused": list(result.refused),
+        "parameters": parameters_json(result.final),
+    }
+
+
+def _step_json(s: Step) -> dict[str, object]:
+    return {"added": s.added, "parameter": s.parameter,
+            "value": {"value": s.value, "std": s.std, "unit": s.unit},
+            "evidence": s.evidence, "error_before": s.error_before,
+            "error_after": s.error_after}
+
+
+def format_loop(result: LoopResult) -> str:
+    """Closing the loop, as a person reads it: each step with its evidence and errors."""
+    lines = ["closing the loop",
+             f"  base model: residual {result.diagnosis_before.residual_over_noise:.2f} x sensor "
+             f"noise, {'white' if result.diagnosis_before.white else 'not white'} "
+             f"(Ljung-Box p = {result.diagnosis_before.ljung_box_p:.2g})"]
+    for i, s in enumerate(result.steps, 1):
+        ev = s.evidence
+        lines.append(f"  step {i}: added {s.added} {s.parameter} = {s.value:.4g} ± {s.std:.2g} "
+                     f"{s.unit}")
+        lines.append(f"    evidence: score χ²₁ = {ev['value']:.1f}, residual cut "
+                     f"{100 * ev['rss_drop']:.1f} %, t = {ev['t']:.1f}; held out: {ev['heldout']}")
+        lines.append(f"    why: {ev['explanation']}")
+        lines.extend("    " + row for row in _error_rows(s.error_before, s.error_after))
+    if not result.steps:
+        lines.append("  no candidate effect was significant")
+    lines.append(f"  final: {result.description}")
+    if result.unexplained:
+        lines.append("  UNEXPLAINED STRUCTURE: no effect in the library accounts for it")
+    lines.append("  before -> after, per run:")
+    lines.extend("    " + row for row in _error_rows(result.error_before, result.error_after))
+    return "\n".join(lines)
+
+
+def _error_rows(before: dict, after: dict) -> list[str]:
+    rows = []
+    for run in before:
+        b, a = before[run], after[run]
+        cells = [f"{k} {100 * b[k]:.2f} -> {100 * a[k]:.2f} %" for k in ("z", "zd", "xdd")
+                 if k in b]
+        if "force_rms" in b:
+            cells.append(f"force {b['force_rms']:.1f} -> {a['force_rms']:.1f} N")
+        cells.append(f"residual/noise {b['residual_over_noise']:.2f} -> "
+                     f"{a['residual_over_noise']:.2f}")
+        rows.append(f"run {run}: NRMSE " + ", ".join(cells))
+    return rows
+
+
+SIGNATURE_LABEL = {"z": "relative displacement z (m)", "zd": "relative velocity ż (m/s)",
+                   "t": "time over the campaign (s)", "x": "mass displacement x (m)",
+                   "xd": "mass velocity ẋ (m/s)"}
+
+
+def loop_figures(result: LoopResult, out: Path) -> list[Path]:
+    """One PNG per step: the residual before it against the variable that exposed it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, s in enumerate(result.steps, 1):
+        fig, ax = plt.subplots(figsize=(7, 4))
+        v, r = s.signature_before, s.residual_before
+        ax.plot(v, r, ",", alpha=0.4, color="tab:blue")
+        edges = np.quantile(v, np.linspace(0, 1, 25))
+        mid = 0.5 * (edges[1:] + edges[:-1])
+        which = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, 23)
+        means = [r[which == b].mean() if np.any(which == b) else np.nan for b in range(24)]
+        ax.plot(mid, means, "o-", color="tab:red", label="bin mean")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xlabel(SIGNATURE_LABEL[s.evidence["signature"]])
+        ax.set_ylabel("residual x_model − x_meas (× sensor noise)")
+        ax.set_title(f"step {i}: residual before adding {s.added}")
+        ax.legend()
+        fig.tight_layout()
+        path = out / f"loop_step{i}_{s.added}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def add_loop_section(page: Path, result: LoopResult) -> None:
+    """Append "closing the loop" (text and one figure per step) to the fit's HTML page."""
+    import html
+
+    figures = loop_figures(result, page.parent)
+    body = "".join(f"<p><img src='{p.name}' alt='{html.escape(p.stem)}'></p>\n"
+                   for p in figures)
+    section = (f"<h2>Closing the loop</h2>\n<pre>{html.escape(format_loop(result))}</pre>\n"
+               f"{body}")
+    text = page.read_text(encoding="utf-8")
+    page.write_text(text.replace("</body>", section + "</body>", 1), encoding="utf-8")
