@@ -157,6 +157,19 @@ class Plant:
                     "extension": np.array(self._ext)}
 
 
+def warm_up(model: IsolatorModel) -> None:
+    """Make the plant's first call to the integrator now, before anything is served.
+
+    In a new environment that call compiles (or loads) the numba kernel, which takes
+    seconds; made from the first chunk it would stall the sensors past the rig's
+    liveness limit and abort the first run.
+    """
+    ts = DT * np.arange(CHUNK + 1)
+    zeros = np.zeros(CHUNK + 1)
+    simulate(model, _hermite(ts, zeros, zeros), duration=CHUNK * DT, dt=DT, t0=0.0, z0=0.0,
+             zd0=0.0, s0=np.zeros(len(model.terms)))
+
+
 def _hermite(t: np.ndarray, u: np.ndarray, ud: np.ndarray) -> PPoly:
     """The cubic Hermite through (t, u, u̇) as a PPoly (scipy's class costs 0.5 ms a call)."""
     h = np.diff(t)

@@ -9,6 +9,7 @@ which the logged samples are matched to by device timestamp.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -171,3 +172,19 @@ def _alive(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+@pytest.mark.slow
+def test_a_fresh_machine_with_no_compiled_kernel_runs_cleanly(tmp_path):
+    """With an empty numba cache the sim compiles before it serves, not mid-run.
+
+    Compiling in the first plant chunk silenced the sensors past the rig's liveness
+    limit and aborted run A of the README's main job on a fresh machine (seen in CI).
+    """
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    rig = Path(sys.executable).with_name("rig")
+    done = subprocess.run([str(rig), "run", "--profile", "C", "--yes", "--out", str(tmp_path)],
+                          env=env, capture_output=True, text=True, timeout=240, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "success" in done.stdout
+    assert any((tmp_path / "numba-cache").rglob("*.nbi"))  # it did compile, cold
