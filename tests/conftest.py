@@ -1,6 +1,10 @@
-"""Shared fixtures: the report's model and profiles."""
+"""Shared fixtures: the report's model and profiles; a check that nothing leaks."""
 
 from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator
 
 import pytest
 
@@ -16,3 +20,13 @@ def average_model():
 @pytest.fixture(scope="session")
 def run_a():
     return load_profile("A")
+
+
+@pytest.fixture
+def no_leaks() -> Iterator[None]:
+    """Fails a test that leaves a thread running or a file descriptor open."""
+    threads = set(threading.enumerate())
+    fds = len(os.listdir("/proc/self/fd"))
+    yield
+    assert set(threading.enumerate()) <= threads
+    assert len(os.listdir("/proc/self/fd")) == fds

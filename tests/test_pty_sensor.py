@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import os
-import threading
 import time
-from collections.abc import Iterator
 
 import pytest
 import serial
@@ -17,13 +14,7 @@ from sim.pty_sensor import PtySensor, SerialFaults
 LIVENESS_S = 5.0  # generous: only a hung sensor takes this long
 
 
-@pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
-    threads = set(threading.enumerate())
-    fds = len(os.listdir("/proc/self/fd"))
-    yield
-    assert set(threading.enumerate()) <= threads
-    assert len(os.listdir("/proc/self/fd")) == fds
+pytestmark = pytest.mark.usefixtures("no_leaks")  # every bus, port and thread closes
 
 
 def _read(port: serial.Serial, decoder: FrameDecoder, seconds: float) -> list[Frame]:

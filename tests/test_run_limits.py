@@ -7,8 +7,6 @@ frames the bus drops are counted as lost and marked as gaps.
 
 from __future__ import annotations
 
-import os
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -30,14 +28,7 @@ from rig.runner import run_profile
 from sim.rig_sim import SimRig
 from sim.socketcand_server import BusFaults
 
-
-@pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
-    threads = set(threading.enumerate())
-    fds = len(os.listdir("/proc/self/fd"))
-    yield
-    assert set(threading.enumerate()) <= threads
-    assert len(os.listdir("/proc/self/fd")) == fds
+pytestmark = pytest.mark.usefixtures("no_leaks")  # every bus, port and thread closes
 
 
 @pytest.fixture

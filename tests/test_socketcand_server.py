@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import gc
-import os
 import random
 import socket
 import subprocess
@@ -22,13 +21,7 @@ from sim.socketcand_server import CAN_ERR_PROT, BusFaults, SocketcandServer
 LIVENESS_S = 5.0  # generous: only a hung bus takes this long
 
 
-@pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
-    threads = set(threading.enumerate())
-    fds = len(os.listdir("/proc/self/fd"))
-    yield
-    assert set(threading.enumerate()) <= threads
-    assert len(os.listdir("/proc/self/fd")) == fds
+pytestmark = pytest.mark.usefixtures("no_leaks")  # every bus, port and thread closes
 
 
 @pytest.fixture
