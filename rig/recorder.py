@@ -33,7 +33,11 @@ from rig.serial_frame import DecoderStats, Frame, encode_frame
 
 LIVENESS_S = 0.25  # s a sensor may stay silent during a run
 FOLLOWING_LIMIT_M = 0.0254  # 1 in from the recent setpoints
-FOLLOWING_WINDOW_S = 0.06  # s of setpoints a lagging actuator may still be following
+# s of setpoints a feedback frame may still reflect: the servo's lag plus the frame's
+# delivery latency, which reached 0.2 s on a loaded 2-core machine (a 60 ms window
+# tripped a healthy actuator in CI). Same bound as the sensors' liveness: a stuck valve
+# is caught within this plus the time the setpoints need to move 1 in away.
+FOLLOWING_WINDOW_S = 0.25
 HOLD_S = 0.5  # s sensor samples wait for a better clock fit before they are written
 
 
@@ -182,7 +186,7 @@ class Recorder:
         if self.plan is None or self.start_run_t is None:
             return
         local = t - self.start_run_t
-        window = np.linspace(local - FOLLOWING_WINDOW_S, local, 13)
+        window = np.linspace(local - FOLLOWING_WINDOW_S, local, 51)
         sp = np.interp(window, self.plan.t, self.plan.extension[:, actuator - 1])
         error = max(0.0, position - sp.max(), sp.min() - position)
         if error > FOLLOWING_LIMIT_M:
