@@ -38,6 +38,11 @@ FOLLOWING_LIMIT_M = 0.0254  # 1 in from the recent setpoints
 # tripped a healthy actuator in CI). Same bound as the sensors' liveness: a stuck valve
 # is caught within this plus the time the setpoints need to move 1 in away.
 FOLLOWING_WINDOW_S = 0.25
+# s of setpoints *ahead* of the rig's schedule a feedback may show: frames are stamped when
+# the rig reads them, and after a stall of its receive loop (0.33 s seen in CI at a run's
+# start) a burst read at once can put the actuators tens of ms ahead of that schedule.
+# A stuck valve falls behind, so this does not delay catching one.
+FOLLOWING_AHEAD_S = 0.05
 HOLD_S = 0.5  # s sensor samples wait for a better clock fit before they are written
 
 
@@ -186,7 +191,7 @@ class Recorder:
         if self.plan is None or self.start_run_t is None:
             return
         local = t - self.start_run_t
-        window = np.linspace(local - FOLLOWING_WINDOW_S, local, 51)
+        window = np.linspace(local - FOLLOWING_WINDOW_S, local + FOLLOWING_AHEAD_S, 61)
         sp = np.interp(window, self.plan.t, self.plan.extension[:, actuator - 1])
         error = max(0.0, position - sp.max(), sp.min() - position)
         if error > FOLLOWING_LIMIT_M:
