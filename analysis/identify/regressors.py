@@ -3,31 +3,22 @@
 Row i, column j is term j's basis at sample i (0 where a gated term sits in
 the dead band), so that the isolator force is Z @ coefs. Built by the same
 compiled `basis` the simulator integrates, so the fitted equation is the
-simulated one. Stateful terms are not linear regressors (their state depends
-on the history through their shape constants) and are refused here.
+simulated one. `regressor_matrix` refuses stateful terms (appendix A's fit
+has none). `campaign_regressors` admits them for the loop: a state driven by
+the motion alone (Bouc–Wen r' = ż − a|ż|r − bż|r|; fluid temperature
+θ' = aż² − θ/τ) is integrated along the measured ż, the fluid temperature
+carrying from one run into the next as the simulator's campaign prediction does.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
 
 from analysis.model.isolator import IsolatorModel
-from analysis.model.terms import basis, kind
-
-
-@njit(cache=True)
-def _columns(kinds, gated, shapes, z, zd, delta, out):
-    for i in range(z.shape[0]):
-        outside = abs(z[i]) > delta if delta > 0.0 else True
-        sz = 1.0 if z[i] > 0 else (-1.0 if z[i] < 0 else 0.0)
-        szd = 1.0 if zd[i] > 0 else (-1.0 if zd[i] < 0 else 0.0)
-        for j in range(kinds.shape[0]):
-            if gated[j] and not outside:
-                out[i, j] = 0.0
-            else:
-                out[i, j] = basis(kinds[j], z[i], zd[i], sz, szd, 0.0, shapes[j, 0],
-                                  shapes[j, 1], shapes[j, 2])
+from analysis.model.terms import basis, kind, state_rate
 
 
 def regressor_matrix(model: IsolatorModel, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
@@ -36,12 +27,45 @@ def regressor_matrix(model: IsolatorModel, z: np.ndarray, zd: np.ndarray) -> np.
         if kind(t.kind).has_state:
             raise ValueError(f"term {t.name!r} ({t.kind}) has internal state; it is "
                              "identified by output error, not as a linear regressor")
-    kinds, gated = model.structure()
-    shapes = np.zeros((len(model.terms), 3))
-    for j, t in enumerate(model.terms):
-        shapes[j, :len(t.shape)] = t.shape
-    z = np.ascontiguousarray(z, float)
-    zd = np.ascontiguousarray(zd, float)
-    out = np.empty((z.size, len(model.terms)))
-    _columns(kinds, gated, shapes, z, zd, model.dead_band, out)
-    return out
+    # with no stateful term the campaign builder is this matrix exactly
+    return campaign_regressors(model, [np.asarray(z, float)], [np.asarray(zd, float)], dt=1.0)
+
+
+@njit(cache=True)
+def _series(code, gated, a, b, c, z, zd, delta, dt, s0, out):
+    """Fill `out` with one term's basis along (z, ż); return the state at the end."""
+    s = s0
+    for i in range(z.shape[0]):
+        outside = abs(z[i]) > delta if delta > 0.0 else True
+        sz = 1.0 if z[i] > 0 else (-1.0 if z[i] < 0 else 0.0)
+        szd = 1.0 if zd[i] > 0 else (-1.0 if zd[i] < 0 else 0.0)
+        if gated and not outside:
+            out[i] = 0.0
+        else:
+            out[i] = basis(code, z[i], zd[i], sz, szd, s, a, b, c)
+        # midpoint step of the state along the sampled motion
+        k1 = state_rate(code, z[i], zd[i], s, 1.0, a, b, c)
+        k2 = state_rate(code, z[i], zd[i], s + 0.5 * dt * k1, 1.0, a, b, c)
+        s = s + dt * k2
+    return s
+
+
+def campaign_regressors(model: IsolatorModel, z: Sequence[np.ndarray],
+                        zd: Sequence[np.ndarray], dt: float) -> np.ndarray:
+    """Z (Σn, J): each term's basis on every sample of the runs, in order."""
+    codes, gated = model.structure()
+    state = np.zeros(len(model.terms))
+    blocks = []
+    for zr, zdr in zip(z, zd):
+        zr, zdr = np.ascontiguousarray(zr, float), np.ascontiguousarray(zdr, float)
+        Z = np.empty((zr.size, len(model.terms)))
+        for j, t in enumerate(model.terms):
+            shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
+            col = np.empty(zr.size)
+            end = _series(codes[j], gated[j], *shape, zr, zdr, model.dead_band, dt, state[j],
+                          col)
+            Z[:, j] = col
+            if t.kind == "thermal_damper":  # the fluid stays warm into the next run
+                state[j] = end
+        blocks.append(Z)
+    return np.vstack(blocks)

@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.identify.output_error import RunData, noise_sigma
+from analysis.identify.regressors import campaign_regressors
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.evidence import Diagnosis, diagnose
 from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit, score
-from analysis.loop.regressors import campaign_regressors
 from analysis.model.isolator import IsolatorModel
 from analysis.table_motion import estimate_table_motion
 
@@ -349,8 +349,9 @@ def _states(fit: Fit, runs: Sequence[LoopRun]) -> tuple[list[np.ndarray], list[n
 
 
 def _signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.ndarray:
-    z, zd = _states(fit, runs)
     pred = predict(fit.hypothesis, [r.data for r in runs])
+    z = [p[0] - r.data.motion(r.data.t) for p, r in zip(pred, runs)]
+    zd = [np.gradient(v, r.data.t) for v, r in zip(z, runs)]
     out = {"z": z, "zd": zd, "t": [r.data.t for r in runs], "x": [p[0] for p in pred],
            "xd": [np.gradient(p[0], r.data.t) for p, r in zip(pred, runs)]}[c.signature]
     return np.concatenate(out)
