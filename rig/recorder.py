@@ -28,6 +28,7 @@ from rig.clock_fit import ClockFit
 from rig.config import RigConfig
 from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan
+from rig.live import ActuatorLive, LiveStatus, Trace
 from rig.runfile import RunWriter
 from rig.serial_frame import DecoderStats, Frame, encode_frame
 
@@ -67,6 +68,9 @@ class Recorder:
         self.faults: list[str] = []
         self._serial_stats = DecoderStats()
         self._pending: dict[str, deque] = {"table_u": deque(), "mass_x": deque()}
+        # for displays only (rig.live): recent samples on arrival time, last feedback
+        self.traces = {"table_u": Trace(), "mass_x": Trace()}
+        self._last_feedback: dict[int, tuple[float, int, int, float]] = {}
 
     # -- CAN -------------------------------------------------------------------------------
 
@@ -94,7 +98,9 @@ class Recorder:
         fit, sensor = self.table_clock, self.config.table_sensor
         device_s = fit.device_seconds(m.timestamp_us)
         fit.add(device_s, t)
-        self._defer("table_u", t, device_s, m.counts * sensor.scale + sensor.offset)
+        value = m.counts * sensor.scale + sensor.offset
+        self._defer("table_u", t, device_s, value)
+        self.traces["table_u"].append(t, value)
         self.counts["table"] += 1
         self.last_seen["table"] = t
 
@@ -131,7 +137,8 @@ class Recorder:
         if m.faults != Fault.NONE or m.status == NodeState.FAULT:
             self.faults.append(f"actuator {i} reports {m.status.name} with faults "
                                f"{m.faults!r} at t = {t:.3f} s")
-        self._following(t, i, m.position)
+        error = self._following(t, i, m.position)
+        self._last_feedback[i] = (m.position, int(m.status), int(m.faults), error)
 
     def _sequence(self, key: int, seq: int, bits: int, t: float, channel: str = "") -> None:
         """Count frames missing between consecutive sequence numbers of one stream."""
@@ -164,7 +171,9 @@ class Recorder:
             self.w.serial_frame(t, encode_frame(f.seq, f.timestamp_us, f.counts, f.status))
             device_s = fit.device_seconds(f.timestamp_us)
             fit.add(device_s, t)
-            self._defer("mass_x", t, device_s, f.counts * sensor.scale + sensor.offset)
+            value = f.counts * sensor.scale + sensor.offset
+            self._defer("mass_x", t, device_s, value)
+            self.traces["mass_x"].append(t, value)
         self._serial_stats = stats
         self.lost["serial"] = stats.seq_gaps
         for kind, total in (("lost", stats.seq_gaps), ("crc_errors", stats.crc_errors),
@@ -187,9 +196,10 @@ class Recorder:
             t = self.start_run_t + index / self.plan.rate
             self.w.sample(f"actuator_setpoint_{actuator}", t, position)
 
-    def _following(self, t: float, actuator: int, position: float) -> None:
+    def _following(self, t: float, actuator: int, position: float) -> float:
+        """Following error (m, NaN before START); a fault is recorded past the limit."""
         if self.plan is None or self.start_run_t is None:
-            return
+            return float("nan")
         local = t - self.start_run_t
         window = np.linspace(local - FOLLOWING_WINDOW_S, local + FOLLOWING_AHEAD_S, 61)
         sp = np.interp(window, self.plan.t, self.plan.extension[:, actuator - 1])
@@ -198,6 +208,29 @@ class Recorder:
             self.faults.append(f"actuator {actuator} following error {error * 1000:.1f} mm "
                                f"exceeds limit {FOLLOWING_LIMIT_M * 1000:.1f} mm "
                                f"at t = {t:.3f} s")
+        return error
+
+    def live(self, phase: str, now_run: float, frames_per_s: float) -> LiveStatus:
+        """A snapshot for displays (rig.live); times from START (s), which may be negative."""
+        start = self.start_run_t if self.start_run_t is not None else now_run
+        duration = float(self.plan.t[-1]) if self.plan is not None else 0.0
+        actuators = []
+        for i in cm.ACTUATORS:
+            setpoint = float("nan")
+            if self.plan is not None and self.start_run_t is not None:
+                setpoint = float(np.interp(now_run - start, self.plan.t,
+                                           self.plan.extension[:, i - 1]))
+            pos, status, faults, error = self._last_feedback.get(
+                i, (float("nan"), -1, 0, float("nan")))
+            name = NodeState(status).name if status in NodeState._value2member_map_ else "?"
+            actuators.append(ActuatorLive(i, setpoint, pos, error, name, faults))
+        traces = {}
+        for name, trace in self.traces.items():
+            t, v = trace.recent(now_run)
+            traces[name] = (t - start, v)
+        return LiveStatus(phase, now_run - start, duration, traces["table_u"], traces["mass_x"],
+                          tuple(actuators), dict(self.counts), dict(self.lost),
+                          self.crc_errors, frames_per_s)
 
     def check(self, now_run: float, since: float) -> None:
         """Raise RunAborted if a watchdog tripped; sensors must be live after `since` (run s)."""

@@ -18,7 +18,7 @@ import logging
 import queue
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import can
@@ -31,6 +31,7 @@ from rig.config import RigConfig, config_to_dict
 from rig.errors import RigError
 from rig.geometry import ActuatorPlan, actuator_plan
 from rig.limits import check_plan
+from rig.live import LiveStatus, Publisher, RunControl
 from rig.profile import Profile
 from rig.recorder import Recorder, RunAborted
 from rig.runfile import RunInfo, RunWriter, standard_channels
@@ -70,11 +71,14 @@ class RunResult:
 def run_profile(config: RigConfig, profile: Profile, profile_text: str, out_dir: Path,
                 confirm: Callable[[], bool] = lambda: True,
                 progress: Callable[[str], None] = lambda _: None,
-                sim_args: tuple[str, ...] = (), start_sim: bool = True) -> RunResult:
+                sim_args: tuple[str, ...] = (), start_sim: bool = True,
+                control: RunControl | None = None) -> RunResult:
     """Run `profile` once and write `out_dir/<time>_<profile>.h5`; see module docstring.
 
     start_sim: with backend "sim", start `sim serve` for this run; False when the
     caller already runs one (a campaign) and `config` points at it.
+    control: the e-stop flag and live listeners (rig.live); the stop is honoured from
+    the moment the run file opens, within one pass of the loop (a few ms).
     """
     plan = actuator_plan(config, profile)
     check_plan(config, plan)  # LimitError: nothing opened, nothing sent
@@ -83,13 +87,34 @@ def run_profile(config: RigConfig, profile: Profile, profile_text: str, out_dir:
         from rig.simproc import SimProcess  # starts a process: only when asked for
         with SimProcess(config, extra_args=sim_args) as sim:
             progress(f"sim serve running (pid {sim.pid})")
-            return _run(sim.config, profile, profile_text, plan, out_dir, confirm, progress)
-    return _run(config, profile, profile_text, plan, out_dir, confirm, progress)
+            return _run(sim.config, profile, profile_text, plan, out_dir, confirm, progress,
+                        control)
+    return _run(config, profile, profile_text, plan, out_dir, confirm, progress, control)
+
+
+class _Loop:
+    """What every pass of the runner's loops does besides receiving: e-stop and listeners."""
+
+    def __init__(self, rec: Recorder, writer: RunWriter, control: RunControl | None) -> None:
+        self.rec, self.writer, self.control = rec, writer, control
+        self.publisher = Publisher(control)
+        self.phase = "baseline"
+
+    def tick(self) -> None:
+        if self.control is not None and self.control.stop.is_set():
+            raise RunAborted("emergency stop by the operator")
+        if self.publisher.due():
+            self.control.publish(self.status())
+
+    def status(self, status: str = "", reason: str = "") -> LiveStatus:
+        fps = self.publisher.sent(self.rec.counts["can"] + self.rec.counts["serial"])
+        live = self.rec.live(self.phase, self.writer.elapsed(), fps)
+        return replace(live, status=status, reason=reason) if status else live
 
 
 def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorPlan,
-         out_dir: Path, confirm: Callable[[], bool], progress: Callable[[str], None]
-         ) -> RunResult:
+         out_dir: Path, confirm: Callable[[], bool], progress: Callable[[str], None],
+         control: RunControl | None = None) -> RunResult:
     path = Path(out_dir) / f"{time.strftime('%Y%m%dT%H%M%S')}_{profile.name}.h5"
     info = RunInfo(profile.name, profile_text, config.backend,
                    configuration_toml=_toml(config),
@@ -98,7 +123,7 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
                                 "mass_sensor": {"scale_m": config.mass_sensor.scale,
                                                 "offset_m": config.mass_sensor.offset}})
     bus = open_bus(config)
-    port = receivers = writer = rec = None
+    port = receivers = writer = rec = loop = None
     status, reason = "fail", ""
     t_begin = time.monotonic()
     try:
@@ -107,11 +132,12 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
         start_unix = _start_unix(writer)
         rec = Recorder(writer, config, start_unix, writer.t0)
         receivers = Receivers(bus, port)
+        loop = _Loop(rec, writer, control)
         progress(f"logging to {path}")
-        _pump_until(receivers, rec, writer, writer.elapsed() + BASELINE_S, since=None)
+        _pump_until(receivers, rec, writer, writer.elapsed() + BASELINE_S, since=None, loop=loop)
         if not confirm():
             raise NotArmed("not armed: the operator did not confirm; nothing moved")
-        _stream(bus, receivers, rec, writer, plan, progress)
+        _stream(bus, receivers, rec, writer, plan, progress, loop)
         status = "success"
     except (RunAborted, NotArmed) as exc:
         status, reason = "abort", str(exc)
@@ -132,12 +158,15 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
         bus.shutdown()
         if writer is not None:
             writer.close(status, reason)
+        if loop is not None and control is not None:
+            loop.phase = "ended"
+            control.publish(loop.status(status, reason or status))
     return RunResult(path, status, reason, time.monotonic() - t_begin,
                      dict(rec.counts), dict(rec.lost), rec.crc_errors)
 
 
 def _stream(bus: can.BusABC, receivers: Receivers, rec: Recorder, writer: RunWriter,
-            plan: ActuatorPlan, progress: Callable[[str], None]) -> None:
+            plan: ActuatorPlan, progress: Callable[[str], None], loop: _Loop) -> None:
     """Send every timed message at its due time; drain and watch in between."""
     rec.plan = plan
     messages = list(run_messages(plan))
@@ -149,6 +178,7 @@ def _stream(bus: can.BusABC, receivers: Receivers, rec: Recorder, writer: RunWri
     for j in range(k):  # prefill setpoints are logged now that START's time is known
         _log_setpoint(rec, messages[j])
     since = rec.start_run_t
+    loop.phase = "running"
     progress(f"START: {len(plan.t)} setpoints at {plan.rate:g} Hz, {plan.t[-1]:.2f} s")
     while k < len(messages):
         now = time.monotonic() - start
@@ -156,9 +186,11 @@ def _stream(bus: can.BusABC, receivers: Receivers, rec: Recorder, writer: RunWri
             k = _send(bus, rec, messages[k], k)
         _pump(receivers, rec, writer, timeout=0.001)
         rec.check(writer.elapsed(), since)
+        loop.tick()
     # STOP went out with the last setpoint, LEAD_SAMPLES before it is played
+    loop.phase = "settling"
     _pump_until(receivers, rec, writer, writer.elapsed() + LEAD_SAMPLES / plan.rate + SETTLE_S,
-                since=since)
+                since=since, loop=loop)
 
 
 def _send(bus: can.BusABC, rec: Recorder, timed: Timed, k: int) -> int:
@@ -206,11 +238,12 @@ def _handle(rec: Recorder, item: tuple) -> None:
 
 
 def _pump_until(receivers: Receivers, rec: Recorder, writer: RunWriter, until: float,
-                since: float | None) -> None:
+                since: float | None, loop: _Loop) -> None:
     while writer.elapsed() < until:
         _pump(receivers, rec, writer, timeout=0.005)
         if since is not None:
             rec.check(writer.elapsed(), since)
+        loop.tick()
 
 
 def _drain(receivers: Receivers, rec: Recorder, writer: RunWriter) -> None:
