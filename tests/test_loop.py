@@ -66,6 +66,46 @@ def test_the_loop_finds_the_undeclared_effect(spec, parameter, truth):
     assert "run A" in step.evidence["heldout"]
 
 
+# Each at the size that changes the peak mass acceleration of run A, B or C by ~5 %
+# (bench/loop.py measures these by bisection), the issue's test magnitude.
+@pytest.mark.parametrize("spec,parameter,truth", [
+    ("asymmetric_damping=560", "c_ext", 560.0),
+    ("quadratic_damping=284", "c_q", 284.0),
+    ("cubic_stiffness=8.2e5", "k3", 8.2e5),
+    ("sensor_gain=0.05", "sensor_gain", 0.05),
+])
+def test_effects_at_five_percent_of_the_peak_acceleration_are_named_first(spec, parameter,
+                                                                          truth):
+    name = spec.split("=")[0]
+    result = close_loop(report_model("average"), campaign(spec))
+    assert result.effects_added[:1] == [name]
+    assert result.steps[0].parameter == parameter
+    assert result.steps[0].value == pytest.approx(truth, rel=0.03)
+    assert result.diagnosis_before.residual_over_noise > 5.0
+    # "within ~20 % of the noise floor" (issue 6); measured 0.97-1.02
+    assert result.diagnosis_after.residual_over_noise < 1.1
+    assert not result.unexplained
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_clean_campaigns_get_nothing_added_over_ten_seeds(seed):
+    result = close_loop(report_model("average"), campaign(seed=seed))
+    assert result.effects_added == [], result.refused
+    assert result.diagnosis_after.residual_over_noise < 1.1
+
+
+def test_two_effects_at_once_are_both_named():
+    result = close_loop(report_model("average"),
+                        campaign("coulomb_friction=167", "asymmetric_damping=560"))
+    # both named before anything else; a small third term (preload, 52 N) still follows
+    # on this draw, absorbing what the asymmetric damping's estimate (9 % low) leaves
+    assert sorted(result.effects_added[:2]) == ["asymmetric_damping", "coulomb_friction"]
+    final = dict(zip(result.final.names, result.final.values))
+    assert final["c3"] == pytest.approx(167.0, rel=0.05)
+    assert final["c_ext"] == pytest.approx(560.0, rel=0.15)
+    assert result.diagnosis_after.residual_over_noise < 1.1
+
+
 def test_structure_outside_the_library_is_reported_not_forced():
     """A mass sensor that reads x + x²/(2 m), 1 cm high at full stroke: no candidate explains it."""
     result = close_loop(report_model("average"),

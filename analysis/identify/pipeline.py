@@ -166,14 +166,15 @@ def identify(runs: Sequence[MeasuredRun], refine_output_error: bool = True,
     errors = {p.run.name: run_error(model, p) for p in prepared}
     if per_run and refine_output_error and len(prepared) > 1:
         for p in prepared:
-            runs_fit[p.run.name] = _run_alone(p, model0, model, errors[p.run.name], progress)
+            runs_fit[p.run.name] = _run_alone(p, model0, model, errors[p.run.name], progress,
+                                              free=joint.names)
     return IsolatorFit(model=model, estimate=estimate, appendix_a=appendix_a, projection=proj,
                        joint=joint, held=held, per_run=runs_fit, errors=errors,
                        flagged=flag_runs(runs_fit), prepared=prepared)
 
 
 def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, error: RunError,
-               progress: Progress) -> OutputErrorFit:
+               progress: Progress, free: Sequence[str] | None = None) -> OutputErrorFit:
     """One run's own output-error fit, from the joint estimate if it fits the run.
 
     A run the joint model leaves at more than CONSISTENT × its noise has other
@@ -182,7 +183,8 @@ def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, erro
     """
     if error.residual_over_noise <= CONSISTENT:
         progress(f"run {p.run.name}: output error from the joint estimate")
-        return _refine(joint, [p], progress)
+        # what the joint fit held, one run of it cannot determine either
+        return _refine(joint, [p], progress, free=free)
     progress(f"run {p.run.name}: variable projection, output error")
     own = project(model0, _stack([p]), free=LINEAR, grid=PER_RUN_GRID).model
     if any(own.parameters()[n] <= 0 for n in LINEAR):
@@ -191,8 +193,8 @@ def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, erro
     return _refine(own, [p], progress)
 
 
-def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Progress
-            ) -> OutputErrorFit:
+def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Progress,
+            free: Sequence[str] | None = None) -> OutputErrorFit:
     """Output error over the constants of REFINED that these runs determine.
 
     Checked twice: at the start (cheap, one Jacobian) and at the optimum, where
@@ -202,7 +204,10 @@ def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Pro
     """
     runs = [p.oe for p in prepared]
     start = _positive_start(start)
-    free, held = determined(start, runs, REFINED)
+    if free is None:
+        free, held = determined(start, runs, REFINED)
+    else:  # given (a fit on more data already split them): skip the start's Jacobian
+        free, held = tuple(free), tuple(n for n in REFINED if n not in free)
     fit = refine(start, runs, free)
     loose = [n for n, v, s in zip(fit.names, fit.values, fit.std) if s > HOLD_LOG_STD * v]
     if loose:
