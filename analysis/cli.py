@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from analysis.cli_fit import add_fit_parser, run_fit
+from analysis.force_driven.datasets import add_datasets_parser, run_datasets
 from analysis.model.report_constants import format_table1
 from rig.cli_support import guarded
 
@@ -17,6 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("constants", help="print the report's Table 1")
     p.add_argument("--units", default="us", choices=("us", "si"))
     add_fit_parser(sub)
+    add_datasets_parser(sub)
     return parser
 
 
@@ -30,6 +32,8 @@ def _main(argv: Sequence[str] | None) -> int:
         print(format_table1(args.units))
     elif args.command == "fit":
         return run_fit(args)
+    elif args.command == "datasets":
+        return run_datasets(args)
     return 0
 
 

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_force_fit
 from analysis.identify.loading import UNITS, load_runs
 from analysis.identify.pipeline import IsolatorFit, identify
 from analysis.identify.report_format import fit_json, format_fit
@@ -20,7 +21,7 @@ from rig.units import to_si
 def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="identify Eq 10 from base-excited runs (HDF5 or CSV t,u,x)")
     p.add_argument("files", nargs="+", type=Path, metavar="RUN.h5|CSV")
-    mass = p.add_mutually_exclusive_group(required=True)
+    mass = p.add_mutually_exclusive_group()  # required for base-excited files only
     mass.add_argument("--mass", type=float, metavar="KG", help="isolated mass, kg")
     mass.add_argument("--mass-lb", type=float, metavar="LB", help="isolated mass, lb")
     p.add_argument("--units", choices=UNITS, default=None,
@@ -32,10 +33,17 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                    help="stop after variable projection (no output-error refinement, no loop)")
     p.add_argument("--no-loop", action="store_true",
                    help="skip closing the loop (searching the residual for missing effects)")
+    add_force_arguments(p)
 
 
 def run_fit(args: argparse.Namespace) -> int:
-    mass = args.mass if args.mass is not None else float(to_si(args.mass_lb, "lbm"))
+    mass = (args.mass if args.mass is not None
+            else float(to_si(args.mass_lb, "lbm")) if args.mass_lb is not None else None)
+    if is_force_driven(args):
+        return run_force_fit(args, mass)
+    if mass is None:
+        raise DataError("a base-excited fit needs the isolated mass: give --mass KG or "
+                        "--mass-lb LB")
     loaded = load_runs(args.files, mass, args.units)
     for w in loaded.warnings:
         print(f"analysis: warning: {w}", file=sys.stderr)
