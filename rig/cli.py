@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from rig import cli_run
 from rig.cli_support import guarded
 from rig.profile import load_profile
+from rig.tui import cli as tui_cli
 from rig.units import from_si
 
 
@@ -19,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("profile", help="A, B, C or a profile TOML file")
     p.add_argument("--units", default="us", choices=("us", "si"))
     cli_run.add_parsers(sub)
+    tui_cli.add_parser(sub)
     return parser
 
 
@@ -31,6 +33,8 @@ def _main(argv: Sequence[str] | None) -> int:
     if args.command == "profile":
         print(format_profile(args.profile, args.units))
         return 0
+    if args.command == "tui":
+        return tui_cli.cmd_tui(args)
     return cli_run.dispatch(args) or 0
 
 
