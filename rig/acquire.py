@@ -5,7 +5,11 @@ runner's thread, because the run file has a single writer (rig.runfile). A
 failing receiver puts its exception on the queue, so the run stops with it.
 
 Queue items: ("can", can.Message) with the bus's own timestamp (Unix s);
-("serial", host_monotonic_s, [Frame], DecoderStats); ("error", source, exception).
+("serial", host_monotonic_s, [Frame], DecoderStats), also with no frames when a
+read brought only garbage; ("idle", "can", unix_s) when the bus had nothing for
+POLL_S; ("error", source, exception). Items of one source keep their order, so
+the runner knows up to when each stream is complete (its *horizon*, which the
+liveness rules of rig.interlocks measure silence against).
 """
 
 from __future__ import annotations
@@ -24,10 +28,13 @@ from rig.config import RigConfig
 from rig.serial_frame import FrameDecoder
 
 # python-can's socketcand client logs a warning whenever one recv ends inside a
-# frame and it waits for the rest: routine under load, not a fault
-logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
+# frame and it waits for the rest (routine under load, not a fault), and an error
+# with a whole traceback when the connection is lost, which the receiver reports
+# itself as the run's one-line abort reason
+logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.CRITICAL)
 
 POLL_S = 0.05  # s a receiver blocks before it looks at its stop flag
+IDLE_EVERY_S = 0.01  # s between two "nothing new" items of the serial receiver
 
 
 def open_bus(config: RigConfig) -> can.BusABC:
@@ -59,20 +66,25 @@ class Receivers:
 
     def _can(self) -> None:
         while not self._stop.is_set():
+            asked = time.time()
             msg = self._bus.recv(timeout=POLL_S)
             if msg is not None:
                 self.queue.put(("can", msg))
+            else:  # nothing since `asked`: the stream is complete up to then
+                self.queue.put(("idle", "can", asked))
 
     def _serial(self) -> None:
         decoder = FrameDecoder()
         self._port.reset_input_buffer()  # bytes from before the run are not this run's
+        last_put = 0.0
         while not self._stop.is_set():
             data = self._port.read(max(1, self._port.in_waiting))
-            if data:
-                frames = decoder.feed(data)
-                if frames:
-                    stats = dataclasses.replace(decoder.stats)
-                    self.queue.put(("serial", time.monotonic(), frames, stats))
+            now = time.monotonic()
+            frames = decoder.feed(data) if data else []
+            # an empty item too (rate-limited): garbage or silence still moves the horizon
+            if frames or now - last_put >= IDLE_EVERY_S:
+                self.queue.put(("serial", now, frames, dataclasses.replace(decoder.stats)))
+                last_put = now
 
     def close(self) -> None:
         self._stop.set()

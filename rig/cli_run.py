@@ -1,4 +1,8 @@
-"""The `rig check`, `rig run`, `rig runs` and `rig campaign` commands (printing lives here)."""
+"""The `rig check`, `run`, `runs`, `campaign` and `recover` commands (printing lives here).
+
+Exit codes: 0 done; 1 a run did not succeed (its summary says why); 2 refused or
+unusable input, one line on stderr naming the file and the problem (rig.cli_support).
+"""
 
 from __future__ import annotations
 
@@ -10,10 +14,10 @@ from typing import Any
 
 from rig import can_messages as cm
 from rig.config import RigConfig, load_config
-from rig.errors import ConfigError
+from rig.errors import ConfigError, DataError
 from rig.limits import check_all
 from rig.profile import BUILTIN, load_profile
-from rig.runfile import list_runs
+from rig.runfile import check_output_dir, check_readable, list_runs, read_status, recover
 from rig.runner import RunResult, run_profile
 from rig.simproc import SimProcess
 
@@ -35,6 +39,8 @@ def add_parsers(sub: Any) -> None:
                    help=f"s between runs (default {DEFAULT_PAUSE_S:g})")
     p = sub.add_parser("runs", help="table of the run files in a directory")
     p.add_argument("directory", type=Path)
+    p = sub.add_parser("recover", help="make a run file whose writer died plainly readable")
+    p.add_argument("file", type=Path, help="the run file (.h5); repaired in place")
 
 
 def _profile_args(p: argparse.ArgumentParser) -> None:
@@ -50,7 +56,8 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 def dispatch(args: argparse.Namespace) -> int | None:
     """Run the command if it is one of these; None if not."""
-    handlers = {"check": cmd_check, "run": cmd_run, "campaign": cmd_campaign, "runs": cmd_runs}
+    handlers = {"check": cmd_check, "run": cmd_run, "campaign": cmd_campaign, "runs": cmd_runs,
+                "recover": cmd_recover}
     handler = handlers.get(args.command)
     return None if handler is None else handler(args)
 
@@ -74,6 +81,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     for name in CAMPAIGN:  # all three before anything starts or moves
         check_all(config, load_profile(name))
+    _output_dir(args.out)
     if config.backend != "sim":
         return _campaign(args, config)
     # one simulated rig for the whole campaign, as one table on the bench: what a run
@@ -105,7 +113,7 @@ def _one(args: argparse.Namespace, spec: str, config: RigConfig | None = None,
     config = config or load_config(args.config)
     profile = load_profile(spec)
     text = _profile_text(spec)
-    args.out.mkdir(parents=True, exist_ok=True)
+    _output_dir(args.out)
     print(f"run {profile.name}: {profile.description or spec} ({profile.duration:.2f} s)")
     result = run_profile(config, profile, text, args.out, confirm=lambda: _confirm(args, spec),
                          progress=_say, sim_args=tuple(args.sim_arg), start_sim=start_sim)
@@ -131,13 +139,38 @@ def _profile_text(spec: str) -> str:
     return path.read_text(encoding="utf-8")
 
 
+def _output_dir(out: Path) -> None:
+    """Create the run directory if needed and refuse it now, before anything starts."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{out}: cannot create the output directory: "
+                        f"{exc.strerror or exc}") from None
+    check_output_dir(out)
+
+
 def cmd_runs(args: argparse.Namespace) -> int:
-    rows = list_runs(args.directory)
+    """The table; then each unreadable file as an error line, and exit 2 if there is one."""
+    rows = list_runs(args.directory, probe=True)
     print(f"{'run':<28} {'status':<10} {'duration':>10} {'samples':>9} {'lost':>6}  reason")
     for r in rows:
         print(f"{r.name:<28} {r.status:<10} {r.duration:>8.2f} s {r.samples:>9} "
               f"{r.losses:>6}  {r.reason}")
     print(f"{len(rows)} run files in {args.directory}")
+    bad = [r for r in rows if r.status == "unreadable"]
+    for r in bad:
+        print(f"rig: error: {r.reason}", file=sys.stderr)
+    return 2 if bad else 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    """`rig recover FILE`: one line saying what the file holds now."""
+    check_readable(args.file, read_status)  # a file HDF5 hangs on is refused, not hung on
+    path = recover(args.file)
+    status = read_status(path)
+    rows = sum(n for name, n in status.samples.items() if not name.startswith("raw/"))
+    print(f"{path}: {status.state}, {'complete' if status.complete else 'incomplete'}, "
+          f"{rows} channel samples; {status.reason or 'closed normally'}")
     return 0
 
 

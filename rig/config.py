@@ -168,6 +168,8 @@ def load_config(path: str | Path | None = None) -> RigConfig:
         raise ConfigError(str(path), "", f"cannot read: {e}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(str(path), "", f"not valid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses per nesting level: a hostile file
+        raise ConfigError(str(path), "", "not valid TOML: nested too deeply") from None
     return parse_config(doc, str(path))
 
 

@@ -33,6 +33,8 @@ BUILTIN = ("A", "B", "C")
 LENGTH_UNITS = ("in", "m", "ft")
 PEAK_VELOCITY_FACTOR = 1.875  # max of d/dτ (10τ³ − 15τ⁴ + 6τ⁵)
 PEAK_ACCELERATION_FACTOR = 10 / np.sqrt(3)  # max of d²/dτ², 5.774
+MAX_DURATION_S = 3600.0  # a whole profile, as one segment: longer is a mistake or hostile
+MAX_POSITION_M = 1000.0  # no table travels a kilometre: a bigger position is not a typo of ours
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,7 @@ def parse_profile(doc: dict, source: str) -> Profile:
         raise ConfigError(source, "units", f"must be one of {LENGTH_UNITS}, got {unit!r}")
     scale = factor(unit)
     name = doc.get("name", Path(source).stem)
-    start = _number(doc.get("start", 0.0), source, "start") * scale
+    start = _position(doc.get("start", 0.0), scale, source, "start")
     raw = doc.get("segment")
     if not isinstance(raw, list) or not raw:
         raise ConfigError(source, "segment", "needs at least one [[segment]] table")
@@ -123,9 +125,13 @@ def parse_profile(doc: dict, source: str) -> Profile:
             if "duration" not in s:
                 raise ConfigError(source, f"{where}.duration", "a ramp needs a duration (s)")
             segments.append(Segment(_duration(s["duration"], source, f"{where}.duration"),
-                                    _number(s["ramp_to"], source, f"{where}.ramp_to") * scale))
+                                    _position(s["ramp_to"], scale, source, f"{where}.ramp_to")))
         else:
             raise ConfigError(source, where, "needs 'hold' or 'ramp_to' and 'duration'")
+    total = sum(seg.duration for seg in segments)
+    if total > MAX_DURATION_S:  # the plan is sampled at the setpoint rate: bound its memory
+        raise ConfigError(source, "segment", f"{total:g} s in all is longer than "
+                          f"{MAX_DURATION_S:g} s; refusing")
     return Profile(name=str(name), segments=tuple(segments), start=start,
                    description=str(doc.get("description", "")))
 
@@ -134,6 +140,14 @@ def _number(v: object, source: str, field: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
         raise ConfigError(source, field, f"must be a finite number, got {v!r}")
     return float(v)
+
+
+def _position(v: object, scale: float, source: str, field: str) -> float:
+    """A position in m; absurd magnitudes are refused here, before any limit arithmetic."""
+    x = _number(v, source, field) * scale
+    if abs(x) > MAX_POSITION_M:
+        raise ConfigError(source, field, f"{v!r} is beyond ±{MAX_POSITION_M:g} m; refusing")
+    return x
 
 
 def _duration(v: object, source: str, field: str) -> float:
@@ -161,4 +175,6 @@ def load_profile(spec: str | Path) -> Profile:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(str(path), "", f"not valid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses per nesting level: a hostile file
+        raise ConfigError(str(path), "", "not valid TOML: nested too deeply") from None
     return parse_profile(doc, str(path))

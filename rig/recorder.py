@@ -10,13 +10,24 @@ written `HOLD_S` after it arrived, on the fit as it stands then, so every
 sample but the first half second's is placed by a fit that has seen it and its
 neighbours; `finish()` refits and writes the rest. Live readers lag by HOLD_S.
 
-Watchdogs (`check`): sensor silent longer than `LIVENESS_S`, an actuator that
-reports a fault, or an actuator further than `FOLLOWING_LIMIT_M` from every
-setpoint of the last `FOLLOWING_WINDOW_S` raises `RunAborted` naming the rule.
+Losses, never interpolated: numbered frames (sensor device timestamps, feedback
+servo ticks, heartbeat counters) are classified on arrival (rig.interlocks.Sequences):
+missing ones are counted as `lost`, repeats as `duplicates` (not written twice),
+frames overtaken by a later one as `reordered`. Sensor channels are written in
+device-time order from the held-back samples, so a reordered sample still lands
+in its place, and a hole in device time is marked in /gaps with its size. CAN
+`crc_errors` counts error frames and frames of the rig's DBC ids that do not
+decode (wrong length, an index that contradicts the id, an unknown state).
+
+Watchdogs (`check`): the rules of rig.interlocks (liveness of each sensor and
+actuator, following error by servo tick, START taken by every actuator) plus an
+actuator reporting a fault and a CAN bus-off error frame; the first broken rule
+raises `RunAborted` naming it.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import can
@@ -28,23 +39,17 @@ from rig.clock_fit import ClockFit
 from rig.config import RigConfig
 from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan
+from rig.interlocks import FOLLOWING_LIMIT_M, LIVENESS_S, Interlocks, Sequences, Step
 from rig.live import ActuatorLive, LiveStatus, Trace
 from rig.runfile import RunWriter
 from rig.serial_frame import DecoderStats, Frame, encode_frame
 
-LIVENESS_S = 0.25  # s a sensor may stay silent during a run
-FOLLOWING_LIMIT_M = 0.0254  # 1 in from the recent setpoints
-# s of setpoints a feedback frame may still reflect: the servo's lag plus the frame's
-# delivery latency, which reached 0.2 s on a loaded 2-core machine (a 60 ms window
-# tripped a healthy actuator in CI). Same bound as the sensors' liveness: a stuck valve
-# is caught within this plus the time the setpoints need to move 1 in away.
-FOLLOWING_WINDOW_S = 0.25
-# s of setpoints *ahead* of the rig's schedule a feedback may show: frames are stamped when
-# the rig reads them, and after a stall of its receive loop (0.33 s seen in CI at a run's
-# start) a burst read at once can put the actuators tens of ms ahead of that schedule.
-# A stuck valve falls behind, so this does not delay catching one.
-FOLLOWING_AHEAD_S = 0.05
+__all__ = ["FOLLOWING_LIMIT_M", "HOLD_S", "LIVENESS_S", "Recorder", "RunAborted"]
+
 HOLD_S = 0.5  # s sensor samples wait for a better clock fit before they are written
+CHECK_EVERY_S = 0.005  # s between two looks at the time-based watchdog rules
+CAN_ERR_BUSOFF = 0x040  # SocketCAN error class bit of an error frame: the controller is off
+_US = 1 << 32  # device timestamps are 32-bit µs
 
 
 class RunAborted(RigError):
@@ -59,18 +64,34 @@ class Recorder:
         self.w, self.config = writer, config
         self._start_unix, self._t0 = start_unix, t0_mono
         self.table_clock, self.mass_clock = ClockFit(), ClockFit()
-        self._seq: dict[int, int] = {}  # arbitration id → last sequence (wrapped)
+        self._seq = Sequences()
+        self.watch = Interlocks(config.rates.setpoint)
         self.lost = {"can": 0, "serial": 0}
         self.counts = {"can": 0, "serial": 0, "table": 0, "mass": 0}
-        self.last_seen = {"table": -1.0, "mass": -1.0}  # run time s, arrival
         self.plan: ActuatorPlan | None = None
         self.start_run_t: float | None = None  # run time START was sent
-        self.faults: list[str] = []
         self._serial_stats = DecoderStats()
         self._pending: dict[str, deque] = {"table_u": deque(), "mass_x": deque()}
+        self._written: dict[str, tuple[float, float] | None] = {"table_u": None, "mass_x": None}
+        self._period = {"table_u": 1.0 / config.table_sensor.sample_rate,
+                        "mass_x": 1.0 / config.mass_sensor.sample_rate}
+        self._fb_per_frame = config.rates.setpoint / config.rates.feedback
+        self._fb_state: dict[int, NodeState] = {}
+        self._ours = cm.known_ids()
         # for displays only (rig.live): recent samples on arrival time, last feedback
         self.traces = {"table_u": Trace(), "mass_x": Trace()}
         self._last_feedback: dict[int, tuple[float, int, int, float]] = {}
+        self._next_check = -math.inf
+
+    @property
+    def faults(self) -> list[str]:
+        """Broken rules noticed while receiving (the first one aborts the run)."""
+        return self.watch.faults
+
+    def start(self, plan: ActuatorPlan, start_run_t: float) -> None:
+        """START went out at run time `start_run_t` (s)."""
+        self.plan, self.start_run_t = plan, start_run_t
+        self.watch.start(plan, start_run_t)
 
     # -- CAN -------------------------------------------------------------------------------
 
@@ -80,21 +101,51 @@ class Recorder:
         self.w.can_frame(t, msg.arbitration_id, bytes(msg.data), dlc=msg.dlc,
                          extended=msg.is_extended_id, error=msg.is_error_frame,
                          remote=msg.is_remote_frame)
+        self.watch.reached("can", t)
         if msg.is_error_frame:
+            self.w.count("can", "crc_errors")
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                self.faults.append(f"CAN bus off (error frame class 0x{msg.arbitration_id:03X} "
+                                   f"at t = {t:.3f} s)")
             return
         try:
             m = cm.from_can(msg)
         except DataError:
-            return  # not ours: kept raw, never decoded
+            if msg.arbitration_id in self._ours and not msg.is_extended_id:
+                self.w.count("can", "crc_errors")  # one of ours, but it fails the DBC
+            return  # kept raw, never decoded
         if isinstance(m, TableSample):
             self._table(t, m)
         elif isinstance(m, Feedback):
             self._feedback(t, m)
         elif isinstance(m, Heartbeat):
-            self._sequence(msg.arbitration_id, m.counter, cm.COUNTER_BITS, t)
+            self._count(self._seq.step(msg.arbitration_id, m.counter, 1 << cm.COUNTER_BITS))
+
+    def idle(self, stream: str, stamp: float) -> None:
+        """The receiver of `stream` found nothing more up to `stamp` (Unix s for CAN,
+        monotonic s for serial, as their frames): that stream is complete up to there."""
+        t = stamp - (self._start_unix if stream == "can" else self._t0)
+        self.watch.reached(stream, t)
+
+    def _count(self, step: Step) -> bool:
+        """Count a CAN frame's step; True if its content is new (goes to the channels)."""
+        if step.lost:
+            self.lost["can"] += step.lost
+            self.w.count("can", "lost", step.lost)
+        if step.duplicate:
+            self.w.count("can", "duplicates")
+        if step.late:  # counted lost when its successor came; it was not lost after all
+            if self.lost["can"] > 0:
+                self.lost["can"] -= 1
+                self.w.count("can", "lost", -1)
+            self.w.count("can", "reordered")
+        return not step.duplicate
 
     def _table(self, t: float, m: TableSample) -> None:
-        self._sequence(cm.TABLE_SENSOR_ID, m.sequence, cm.SENSOR_SEQUENCE_BITS, t, "table_u")
+        step = self._seq.step(cm.TABLE_SENSOR_ID, m.timestamp_us, _US,
+                              1e6 * self._period["table_u"])
+        if not self._count(step):
+            return
         fit, sensor = self.table_clock, self.config.table_sensor
         device_s = fit.device_seconds(m.timestamp_us)
         fit.add(device_s, t)
@@ -102,23 +153,36 @@ class Recorder:
         self._defer("table_u", t, device_s, value)
         self.traces["table_u"].append(t, value)
         self.counts["table"] += 1
-        self.last_seen["table"] = t
+        self.watch.sensor("table", t)
 
-    def _defer(self, channel: str, arrival: float, device_s: float | None, value: float) -> None:
-        """Queue a sample (or a gap: device_s None, value = count) and write those older
-        than `HOLD_S`, placed on the clock fit as it stands then (module doc)."""
+    def _defer(self, channel: str, arrival: float, device_s: float, value: float) -> None:
+        """Hold a sample back (in device-time order) and write those older than `HOLD_S`,
+        placed on the clock fit as it stands then (module doc)."""
         pending = self._pending[channel]
-        pending.append((arrival, device_s, value))
+        if pending and device_s < pending[-1][1]:  # reordered: put it in its place
+            k = len(pending)
+            while k > 0 and pending[k - 1][1] > device_s:
+                k -= 1
+            pending.insert(k, (arrival, device_s, value))
+        else:
+            pending.append((arrival, device_s, value))
         while pending and pending[0][0] < arrival - HOLD_S:
             self._write_pending(channel, pending.popleft())
 
-    def _write_pending(self, channel: str, item: tuple[float, float | None, float]) -> None:
-        arrival, device_s, value = item
-        if device_s is None:
-            self.w.gap(channel, arrival, arrival, int(value))
-            return
+    def _write_pending(self, channel: str, item: tuple[float, float, float]) -> None:
+        """Write one held sample; a hole in device time before it goes to /gaps first."""
+        _, device_s, value = item
         fit = self.table_clock if channel == "table_u" else self.mass_clock
-        self.w.sample(channel, fit.model.to_host(device_s), value)
+        host = fit.model.to_host(device_s)
+        last, period = self._written[channel], self._period[channel]
+        if last is not None:
+            if device_s - last[0] < 0.5 * period:
+                return  # a repeat, or older than what is written: a channel never goes back
+            missing = round((device_s - last[0]) / period) - 1
+            if missing > 0:
+                self.w.gap(channel, last[1], host, missing)
+        self.w.sample(channel, host, value)
+        self._written[channel] = (device_s, host)
 
     def finish(self) -> None:
         """Refit both clocks on everything and write every sample still held back."""
@@ -130,43 +194,31 @@ class Recorder:
 
     def _feedback(self, t: float, m: Feedback) -> None:
         i = m.actuator
-        self._sequence(cm.FEEDBACK_BASE + i, m.sequence, cm.FEEDBACK_SEQUENCE_BITS, t,
-                       f"actuator_feedback_{i}")
-        self.w.sample(f"actuator_feedback_{i}", t, m.position)
-        self.w.sample(f"actuator_status_{i}", t, int(m.status) | int(m.faults) << 4)
+        key = cm.FEEDBACK_BASE + i
+        if self._fb_state.get(i) != m.status:
+            self._seq.forget(key)  # the servo tick restarts at START: no loss to count there
+            self._fb_state[i] = m.status
+        step = self._seq.step(key, m.sequence, 1 << cm.FEEDBACK_SEQUENCE_BITS,
+                              self._fb_per_frame)
+        if self._count(step) and not step.late:
+            self.w.sample(f"actuator_feedback_{i}", t, m.position)
+            self.w.sample(f"actuator_status_{i}", t, int(m.status) | int(m.faults) << 4)
         if m.faults != Fault.NONE or m.status == NodeState.FAULT:
             self.faults.append(f"actuator {i} reports {m.status.name} with faults "
                                f"{m.faults!r} at t = {t:.3f} s")
-        error = self._following(t, i, m.position)
+        error = self.watch.feedback(t, m)
         self._last_feedback[i] = (m.position, int(m.status), int(m.faults), error)
-
-    def _sequence(self, key: int, seq: int, bits: int, t: float, channel: str = "") -> None:
-        """Count frames missing between consecutive sequence numbers of one stream."""
-        last = self._seq.get(key)
-        self._seq[key] = seq
-        if last is None:
-            return
-        step = (seq - last) % (1 << bits)
-        if step == 0:
-            self.w.count("can", "duplicates")
-        elif step > 1:
-            self.lost["can"] += step - 1
-            self.w.count("can", "lost", step - 1)
-            if channel in self._pending:
-                self._defer(channel, t, None, step - 1)
-            elif channel:
-                self.w.gap(channel, t, t, step - 1)
 
     # -- serial ----------------------------------------------------------------------------
 
     def serial_frames(self, arrival_mono: float, frames: list[Frame],
                       stats: DecoderStats) -> None:
+        """Frames decoded from one read (maybe none: garbage only) and the decoder's totals."""
         t = arrival_mono - self._t0
         fit, sensor = self.mass_clock, self.config.mass_sensor
         new_gaps = stats.seq_gaps - self._serial_stats.seq_gaps
         if new_gaps:  # somewhere in this read; placed before its frames
             self.w.gap("raw/serial", t, t, new_gaps)
-            self._defer("mass_x", t, None, new_gaps)
         for f in frames:
             self.w.serial_frame(t, encode_frame(f.seq, f.timestamp_us, f.counts, f.status))
             device_s = fit.device_seconds(f.timestamp_us)
@@ -182,7 +234,9 @@ class Recorder:
             self.w.set_count("serial", kind, total)
         self.counts["serial"] += len(frames)
         self.counts["mass"] += len(frames)
-        self.last_seen["mass"] = t
+        self.watch.reached("serial", t)
+        if frames:
+            self.watch.sensor("mass", t)
 
     @property
     def crc_errors(self) -> int:
@@ -196,20 +250,6 @@ class Recorder:
             t = self.start_run_t + index / self.plan.rate
             self.w.sample(f"actuator_setpoint_{actuator}", t, position)
 
-    def _following(self, t: float, actuator: int, position: float) -> float:
-        """Following error (m, NaN before START); a fault is recorded past the limit."""
-        if self.plan is None or self.start_run_t is None:
-            return float("nan")
-        local = t - self.start_run_t
-        window = np.linspace(local - FOLLOWING_WINDOW_S, local + FOLLOWING_AHEAD_S, 61)
-        sp = np.interp(window, self.plan.t, self.plan.extension[:, actuator - 1])
-        error = max(0.0, position - sp.max(), sp.min() - position)
-        if error > FOLLOWING_LIMIT_M:
-            self.faults.append(f"actuator {actuator} following error {error * 1000:.1f} mm "
-                               f"exceeds limit {FOLLOWING_LIMIT_M * 1000:.1f} mm "
-                               f"at t = {t:.3f} s")
-        return error
-
     def live(self, phase: str, now_run: float, frames_per_s: float) -> LiveStatus:
         """A snapshot for displays (rig.live); times from START (s), which may be negative."""
         start = self.start_run_t if self.start_run_t is not None else now_run
@@ -221,7 +261,7 @@ class Recorder:
                 setpoint = float(np.interp(now_run - start, self.plan.t,
                                            self.plan.extension[:, i - 1]))
             pos, status, faults, error = self._last_feedback.get(
-                i, (float("nan"), -1, 0, float("nan")))
+                i, (math.nan, -1, 0, math.nan))
             name = NodeState(status).name if status in NodeState._value2member_map_ else "?"
             actuators.append(ActuatorLive(i, setpoint, pos, error, name, faults))
         traces = {}
@@ -233,11 +273,14 @@ class Recorder:
                           self.crc_errors, frames_per_s)
 
     def check(self, now_run: float, since: float) -> None:
-        """Raise RunAborted if a watchdog tripped; sensors must be live after `since` (run s)."""
-        if self.faults:
-            raise RunAborted(self.faults[0])
-        for sensor, last in self.last_seen.items():
-            silent = now_run - max(last, since)
-            if silent > LIVENESS_S:
-                raise RunAborted(f"{sensor} sensor silent for {silent:.2f} s "
-                                 f"(liveness limit {LIVENESS_S:.2f} s)")
+        """Raise RunAborted if a watchdog tripped; sources must be live after `since` (run s).
+
+        A broken rule noticed on receipt aborts at once; the time-based rules (liveness,
+        START) are looked at every CHECK_EVERY_S, not on every pass of the runner's loop.
+        """
+        if not self.watch.faults and now_run < self._next_check:
+            return
+        self._next_check = now_run + CHECK_EVERY_S
+        broken = self.watch.check(now_run, since)
+        if broken is not None:
+            raise RunAborted(broken)

@@ -31,7 +31,9 @@ Reading: `open_run(path)` -> RunFile (a snapshot, live or not); `LiveRun(path).p
 
 from __future__ import annotations
 
+from rig.runfile_io import check_output_dir
 from rig.runfile_live import LiveRun
+from rig.runfile_probe import check_readable
 from rig.runfile_reader import (
     CanFrames, Channel, Gap, RunFile, RunStatus, RunSummary, SerialFrames, list_runs, open_run,
     read_status,
@@ -49,5 +51,6 @@ __all__ = [
     "FIXED_DATASETS", "SCHEMA_VERSION", "SERIAL_DTYPE", "SERIAL_FRAME_BYTES",
     "CanFrames", "Channel", "ChannelSpec", "DatasetSpec", "Gap", "LiveRun", "RunFile", "RunInfo",
     "RunStatus", "RunSummary", "RunWriter", "SerialFrames",
-    "list_runs", "open_run", "read_status", "recover", "standard_channels",
+    "check_output_dir", "check_readable", "list_runs", "open_run", "read_status", "recover",
+    "standard_channels",
 ]

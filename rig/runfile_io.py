@@ -18,6 +18,7 @@ import errno
 import fcntl
 import os
 import struct
+import tempfile
 import time
 from pathlib import Path
 
@@ -152,6 +153,32 @@ def refuse_unless_writable(path: Path, reserve_bytes: int) -> Path:
             reserve.unlink(missing_ok=True)
         raise DataError(f"{path}: cannot write in {path.parent}: {exc.strerror}") from None
     return reserve
+
+
+DEFAULT_MIN_FREE_BYTES = 16 << 20  # RunWriter's default: stop logging below this
+
+
+def check_output_dir(directory: Path, min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> None:
+    """Refuse a run directory that is missing, not a directory, not writable or nearly full.
+
+    Called before a run opens anything, so a refused run moves nothing. Writability is
+    tried, not inferred from permission bits (root ignores them; a read-only mount does
+    not): a probe file is created and removed.
+    """
+    if not directory.exists():
+        raise DataError(f"{directory}: output directory does not exist")
+    if not directory.is_dir():
+        raise DataError(f"{directory}: output path is not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".rig-probe-", dir=directory)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise DataError(f"{directory}: output directory not writable: {exc.strerror}") from None
+    free = free_bytes(directory)
+    if free < min_free_bytes:
+        raise DataError(f"{directory}: only {free / 2**20:.1f} MiB free, a run needs at least "
+                        f"{min_free_bytes / 2**20:.0f} MiB")
 
 
 def reopen_for_status(path: Path) -> h5py.File:

@@ -20,12 +20,19 @@ import numpy as np
 
 from rig.errors import DataError
 from rig.runfile_io import one_line, open_for_read, writer_alive
+from rig.runfile_probe import check_readable
 from rig.runfile_schema import (
     CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, CAN_FLAG_REMOTE, COUNTER_DTYPE, COUNTER_KINDS,
     COUNTERS_PATH, FIXED_DATASETS, GROUPS, META_ATTRS, ROOT_ATTRS, RUNNING, SCHEMA_VERSION,
 )
 
 _SPECS = {spec.path: spec for spec in FIXED_DATASETS}
+# What h5py and numpy raise on a damaged file (fuzzed: tests/test_faults_input.py). A
+# corrupt object header can make h5py hand back None for a dataset, hence AttributeError;
+# a corrupt dataspace can claim more rows than memory holds.
+_CORRUPT = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError,
+            OverflowError, MemoryError)
+_SLACK_BYTES = 1 << 20  # a table's rows may exceed the file size by its open chunk, no more
 
 
 @dataclass(frozen=True)
@@ -159,14 +166,20 @@ def read_status(path: str | os.PathLike[str]) -> RunStatus:
         return _status(f, _tables(f), alive)
 
 
-def list_runs(directory: str | os.PathLike[str]) -> list[RunSummary]:
-    """A summary row per *.h5 file in `directory`, by name; broken files show as "unreadable"."""
+def list_runs(directory: str | os.PathLike[str], *, probe: bool = False) -> list[RunSummary]:
+    """A summary row per *.h5 file in `directory`, by name; broken files show as "unreadable".
+
+    probe: read each file in a forked child first (rig.runfile_probe), so that a file
+    on which HDF5 hangs or crashes is reported too; for command-line use.
+    """
     directory = Path(directory)
     if not directory.is_dir():
         raise DataError(f"{directory}: no such directory of run files")
     rows = []
     for path in sorted(directory.glob("*.h5")):
         try:
+            if probe:
+                check_readable(path, _summary)
             rows.append(_summary(path))
         except DataError as exc:
             rows.append(RunSummary(path.name, "unreadable", 0.0, 0, 0, str(exc)))
@@ -182,7 +195,7 @@ def _reading(path: Path) -> Iterator[tuple[h5py.File, dict[str, object], bool]]:
         yield f, meta, writer_alive(path)
     except DataError:
         raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
+    except _CORRUPT as exc:
         raise DataError(f"{path}: unreadable run file: {one_line(exc)}") from None
     finally:
         f.close()
@@ -221,9 +234,20 @@ def _text(value: object) -> object:
 
 
 def _tables(f: h5py.File) -> dict[str, h5py.Dataset]:
-    """Every table by path: "raw/can", "raw/serial", "gaps", "channels/<name>"."""
-    tables = {name: f[name] for name in _SPECS}
-    tables |= {f"channels/{name}": ds for name, ds in f["channels"].items()}
+    """Every table by path: "raw/can", "raw/serial", "gaps", "channels/<name>".
+
+    Each must be a 1-D dataset whose rows the file can hold: a damaged header claiming
+    billions of rows is refused here rather than allocated when read.
+    """
+    tables = {name: f.get(name) for name in _SPECS}
+    tables |= {f"channels/{name}": f["channels"].get(name) for name in f["channels"]}
+    size = os.path.getsize(f.filename)
+    for name, ds in tables.items():
+        if not isinstance(ds, h5py.Dataset) or ds.ndim != 1:
+            raise DataError(f"{f.filename}: not a run file: /{name} is not a 1-D table")
+        if ds.shape[0] * ds.dtype.itemsize > size + _SLACK_BYTES:
+            raise DataError(f"{f.filename}: /{name} claims {ds.shape[0]} rows, more than "
+                            f"its {size}-byte file can hold")
     return tables
 
 

@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike
 
 from rig.errors import DataError
 from rig.runfile_io import (
-    describe, free_bytes, hold_writer_lock, is_disk_full, one_line, refuse_unless_writable,
-    reopen_for_status,
+    DEFAULT_MIN_FREE_BYTES, describe, free_bytes, hold_writer_lock, is_disk_full, one_line,
+    refuse_unless_writable, reopen_for_status,
 )
 from rig.runfile_schema import (
     CAN_DATA_BYTES, CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, CAN_FLAG_REMOTE, COUNTER_KINDS,
@@ -36,9 +36,6 @@ from rig.runfile_schema import (
     standard_channels,
 )
 from rig.runfile_tables import Table, create_layout, final_status_attrs, reserve_size
-
-MIB = 1 << 20
-
 
 class RunWriter:
     """Context manager writing one run file; every method is called from one thread.
@@ -60,7 +57,7 @@ class RunWriter:
         sources: Sequence[str] = DEFAULT_SOURCES,
         block_rows: int = 200,
         flush_interval: float = 0.1,
-        min_free_bytes: int = 16 * MIB,
+        min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         """Create `path` (refusing to overwrite) with every dataset; raise DataError if impossible.

@@ -1,23 +1,37 @@
 """One run on the table: check, arm, stream setpoints, log both buses, always end safe.
 
 Order (design.md §4.6–7):
-1. `check_all` and the bus-load budget, before anything is opened: a refused
-   profile never reaches the bus.
+1. `check_all`, the bus-load budget and the output directory (missing, not
+   writable, nearly full), before anything is opened: a refused run never
+   reaches the bus.
 2. With `backend = "sim"` start `sim serve` (rig.simproc) unless given one.
 3. Open the bus, the serial port and the run file; start the receivers; log a
    short baseline; `confirm()` arms (the CLI asks, or --yes).
 4. Send the timed messages of rig.commands at their due times, keeping the
    queue of received frames drained into the run file; watch the watchdogs.
+   The schedule's origin is the instant START went out: the actuators play
+   sample i at START + i / rate, and so does the run file's setpoint channel.
 5. `finally`: SAFE_STATE on the bus, receivers stopped, port and bus closed,
    the run file closed with success / abort / fail and the reason.
+
+Failures and how a run ends (docs/reliability.md): a watchdog, a lost bus or
+port, the operator's e-stop or Ctrl-C end it as `abort`; a storage failure as
+`fail` (the writer closes the file itself, with every flushed row); both return
+a RunResult. Anything else is a bug: `fail`, and the exception propagates.
+Commands (ENABLE, START, STOP, SAFE_STATE) go out `COMMAND_REPEATS` times: a node
+obeys a repeat as a no-op, and one frame lost on the bus must not leave an
+actuator disabled. If the run's bus is dead, SAFE_STATE is tried once more over a
+fresh connection; the actuators' index watchdog holds them anyway.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -25,22 +39,27 @@ import can
 
 from rig import can_messages as cm
 from rig.acquire import Receivers, open_bus, open_port
-from rig.can_messages import Setpoint
-from rig.commands import LEAD_SAMPLES, Timed, run_messages, safe_state
+from rig.can_messages import Command, Setpoint
+from rig.commands import LEAD_SAMPLES, Timed, run_messages
 from rig.config import RigConfig, config_to_dict
-from rig.errors import RigError
+from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan, actuator_plan
 from rig.limits import check_plan
 from rig.live import LiveStatus, Publisher, RunControl
 from rig.profile import Profile
 from rig.recorder import Recorder, RunAborted
-from rig.runfile import RunInfo, RunWriter, standard_channels
+from rig.runfile import RunInfo, RunWriter, check_output_dir, standard_channels
+from rig.safe_state import COMMAND_REPEATS, one_line, send_safe_state
 
 log = logging.getLogger(__name__)
 
 BASELINE_S = 0.3  # s logged before START: the sensors' rest values
 SETTLE_S = 0.3  # s logged after STOP
 PUMP_BATCH = 64  # received items handled between two looks at the setpoint schedule
+
+
+class BusLost(RunAborted):
+    """The run's CAN connection failed: SAFE_STATE needs a fresh one (rig.safe_state)."""
 
 
 class NotArmed(RigError):
@@ -83,6 +102,7 @@ def run_profile(config: RigConfig, profile: Profile, profile_text: str, out_dir:
     plan = actuator_plan(config, profile)
     check_plan(config, plan)  # LimitError: nothing opened, nothing sent
     cm.check_bus_load(config)
+    check_output_dir(Path(out_dir))  # DataError: missing, not writable or full; nothing started
     if config.backend == "sim" and start_sim:
         from rig.simproc import SimProcess  # starts a process: only when asked for
         with SimProcess(config, extra_args=sim_args) as sim:
@@ -99,10 +119,13 @@ class _Loop:
         self.rec, self.writer, self.control = rec, writer, control
         self.publisher = Publisher(control)
         self.phase = "baseline"
+        self.interrupted = False  # Ctrl-C while the table moves (_trap_ctrl_c)
 
     def tick(self) -> None:
         if self.control is not None and self.control.stop.is_set():
             raise RunAborted("emergency stop by the operator")
+        if self.interrupted:
+            raise RunAborted("interrupted by the operator (Ctrl-C)")
         if self.publisher.due():
             self.control.publish(self.status())
 
@@ -124,7 +147,8 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
                                                 "offset_m": config.mass_sensor.offset}})
     bus = open_bus(config)
     port = receivers = writer = rec = loop = None
-    status, reason = "fail", ""
+    untrap: Callable[[], None] = _nothing
+    status, reason, bus_dead = "fail", "", False
     t_begin = time.monotonic()
     try:
         port = open_port(config)
@@ -137,53 +161,92 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
         _pump_until(receivers, rec, writer, writer.elapsed() + BASELINE_S, since=None, loop=loop)
         if not confirm():
             raise NotArmed("not armed: the operator did not confirm; nothing moved")
+        untrap = _trap_ctrl_c(loop)  # from here until the file is closed
         _stream(bus, receivers, rec, writer, plan, progress, loop)
         status = "success"
     except (RunAborted, NotArmed) as exc:
-        status, reason = "abort", str(exc)
+        status, reason, bus_dead = "abort", str(exc), isinstance(exc, BusLost)
     except KeyboardInterrupt:
         status, reason = "abort", "interrupted by the operator (Ctrl-C)"
     except Exception as exc:
         status, reason = "fail", f"{type(exc).__name__}: {exc}".splitlines()[0]
-        raise
+        if not (isinstance(exc, DataError) and writer is not None and writer.closed):
+            raise
+        reason = str(exc)  # the writer failed (storage) and closed the file with every flushed row
     finally:
-        _safe(bus)
-        if receivers is not None:
-            receivers.close()
-            _drain(receivers, rec, writer)  # rec exists whenever receivers do
-            if writer is not None and not writer.closed:
-                rec.finish()
-        if port is not None:
-            port.close()
-        bus.shutdown()
-        if writer is not None:
-            writer.close(status, reason)
-        if loop is not None and control is not None:
-            loop.phase = "ended"
-            control.publish(loop.status(status, reason or status))
+        try:
+            send_safe_state(bus, config, bus_dead)
+            if receivers is not None:
+                receivers.close()
+                if writer is not None and not writer.closed:
+                    _drain(receivers, rec)  # rec exists whenever receivers do
+                    rec.finish()
+            if port is not None:
+                port.close()
+            bus.shutdown()
+            if writer is not None:
+                writer.close(status, reason)
+            if loop is not None and control is not None:
+                loop.phase = "ended"
+                control.publish(loop.status(status, reason or status))
+        finally:
+            untrap()
     return RunResult(path, status, reason, time.monotonic() - t_begin,
                      dict(rec.counts), dict(rec.lost), rec.crc_errors)
 
 
+def _nothing() -> None:
+    return None
+
+
+def _trap_ctrl_c(loop: _Loop) -> Callable[[], None]:
+    """Ctrl-C (SIGINT) sets a flag the loop turns into an orderly abort; returns the undo.
+
+    A KeyboardInterrupt raised at an arbitrary point could land inside a run-file write;
+    the flag is looked at once per pass (~1 ms). Only the main thread can take signals,
+    so a run in a worker thread (the TUI) keeps the process's own handling.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return _nothing
+
+    def interrupted(signum: int, frame: object) -> None:
+        loop.interrupted = True
+
+    previous = signal.signal(signal.SIGINT, interrupted)
+    # None: the old handler was not set from Python; the default is the closest we can restore
+    return lambda: signal.signal(signal.SIGINT, previous if previous is not None
+                                 else signal.SIG_DFL)
+
+
 def _stream(bus: can.BusABC, receivers: Receivers, rec: Recorder, writer: RunWriter,
             plan: ActuatorPlan, progress: Callable[[str], None], loop: _Loop) -> None:
-    """Send every timed message at its due time; drain and watch in between."""
-    rec.plan = plan
-    messages = list(run_messages(plan))
-    k = 0
-    while k < len(messages) and messages[k].due < 0:  # ENABLE and the prefill
-        k = _send(bus, rec, messages[k], k)
+    """Send every timed message at its due time; drain and watch in between.
+
+    Messages come lazily from the generator: a long run would otherwise allocate
+    millions of objects up front, all at the instant the table starts.
+    """
+    messages: Iterator[Timed] = run_messages(plan)
+    prefill = []
+    timed = next(messages)
+    while timed.due < 0:  # ENABLE and the prefill
+        _send(bus, timed)
+        prefill.append(timed)
+        timed = next(messages)
+    _send(bus, timed)  # START: the schedule's origin is the instant it went out
     start = time.monotonic()
-    rec.start_run_t = writer.elapsed()
-    for j in range(k):  # prefill setpoints are logged now that START's time is known
-        _log_setpoint(rec, messages[j])
+    rec.start(plan, writer.elapsed())
+    for t in prefill:  # logged now that START's time is known
+        _log_setpoint(rec, t)
     since = rec.start_run_t
     loop.phase = "running"
     progress(f"START: {len(plan.t)} setpoints at {plan.rate:g} Hz, {plan.t[-1]:.2f} s")
-    while k < len(messages):
+    timed = next(messages, None)
+    while timed is not None:
         now = time.monotonic() - start
-        while k < len(messages) and messages[k].due <= now:
-            k = _send(bus, rec, messages[k], k)
+        while timed is not None and timed.due <= now:
+            _send(bus, timed)
+            _log_setpoint(rec, timed)
+            timed = next(messages, None)
         _pump(receivers, rec, writer, timeout=0.001)
         rec.check(writer.elapsed(), since)
         loop.tick()
@@ -193,11 +256,14 @@ def _stream(bus: can.BusABC, receivers: Receivers, rec: Recorder, writer: RunWri
                 since=since, loop=loop)
 
 
-def _send(bus: can.BusABC, rec: Recorder, timed: Timed, k: int) -> int:
-    bus.send(cm.to_can(timed.message))
-    if rec.start_run_t is not None:
-        _log_setpoint(rec, timed)
-    return k + 1
+def _send(bus: can.BusABC, timed: Timed) -> None:
+    """Put one message on the bus (a command COMMAND_REPEATS times); a dead bus aborts."""
+    frame = cm.to_can(timed.message)
+    try:
+        for _ in range(COMMAND_REPEATS if isinstance(timed.message, Command) else 1):
+            bus.send(frame)
+    except (can.CanError, OSError) as exc:
+        raise BusLost(f"CAN bus lost: cannot send: {one_line(exc)}") from None
 
 
 def _log_setpoint(rec: Recorder, timed: Timed) -> None:
@@ -229,12 +295,18 @@ def _pump(receivers: Receivers, rec: Recorder, writer: RunWriter, timeout: float
 
 
 def _handle(rec: Recorder, item: tuple) -> None:
-    if item[0] == "can":
+    kind = item[0]
+    if kind == "can":
         rec.can_frame(item[1])
-    elif item[0] == "serial":
+    elif kind == "serial":
         rec.serial_frames(item[1], item[2], item[3])
+    elif kind == "idle":
+        rec.idle(item[1], item[2])
+    elif item[1] == "can":  # a receiver died with its bus or port: the rig is blind
+        raise BusLost(f"CAN bus lost: {type(item[2]).__name__}: {one_line(item[2])}")
     else:
-        raise RigError(f"{item[1]} receiver failed: {type(item[2]).__name__}: {item[2]}")
+        raise RunAborted(f"serial port (mass sensor) lost: {type(item[2]).__name__}: "
+                         f"{one_line(item[2])}")
 
 
 def _pump_until(receivers: Receivers, rec: Recorder, writer: RunWriter, until: float,
@@ -246,20 +318,12 @@ def _pump_until(receivers: Receivers, rec: Recorder, writer: RunWriter, until: f
         loop.tick()
 
 
-def _drain(receivers: Receivers, rec: Recorder, writer: RunWriter) -> None:
+def _drain(receivers: Receivers, rec: Recorder) -> None:
     """What arrived before the receivers stopped still goes in the file."""
     while not receivers.queue.empty():
         item = receivers.queue.get_nowait()
         if item[0] != "error":
             _handle(rec, item)
-
-
-def _safe(bus: can.BusABC) -> None:
-    """SAFE_STATE to every node; best effort (a dead bus cannot carry it)."""
-    try:
-        bus.send(cm.to_can(safe_state()))
-    except (can.CanError, OSError, ValueError) as exc:  # a dead bus: the actuators' watchdog holds
-        log.warning("could not send SAFE_STATE: %s", exc)
 
 
 def _start_unix(writer: RunWriter) -> float:

@@ -8,6 +8,22 @@ Watchdog: if the setpoint it needs has not arrived `WATCHDOG_S` after it was due
 it holds its position and sets `Fault.WATCHDOG_HOLD` (the stream stopped).
 STOP while running means "no more setpoints": play the ones held, then stay at
 the last (state ENABLED, no fault); SAFE_STATE holds the current position for good.
+
+Servo tick: the controller counts its servo ticks in setpoint samples (1 / rate).
+START sets the count to the start sample, so while RUNNING the tick is the index
+of the setpoint being played; it keeps counting after the run. Each feedback
+frame carries the tick of its measurement as `Sequence` (16 bits, wrapping), so
+the rig compares a feedback with exactly the setpoint played at that instant,
+whatever the frame's delivery latency (rig.interlocks).
+
+START takes effect the instant it arrives (`clock`), as on a controller whose
+servo tick is short. The plant computes a chunk (20–40 ms) ahead, so the grid
+points already computed keep the old target and the motion starts up to that
+much late, inside the rig's servo-lag allowance. Causality: a grid point before
+START arrived never plays the run. After a stall of the plant thread it computes
+grid points in the past; when START took effect at "the first grid point computed
+after it", such a stall started the actuators before START had reached them, up
+to the stall's length ahead of the rig's schedule.
 """
 
 from __future__ import annotations
@@ -15,6 +31,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
+from collections.abc import Callable
 
 import can
 
@@ -27,8 +44,17 @@ WATCHDOG_S = 0.1  # s a needed setpoint may be late before the actuator holds
 class ActuatorController:
     """One actuator's controller node (1–6) following sample-indexed setpoints at `rate` Hz."""
 
-    def __init__(self, index: int, rate: float) -> None:
+    def __init__(self, index: int, rate: float, clock: Callable[[], float] | None = None
+                 ) -> None:
+        """clock: the plant's clock (host monotonic s), to stamp START's arrival; None
+        (unit tests driving `target` by hand) lets START act at the next `target` call."""
         self.index, self.rate = index, rate
+        self._clock = clock
+        self._start_arrived: float | None = None
+        self._tick_origin = (0.0, 0)  # (plant s, tick): tick(t) = tick + floor((t − s)·rate)
+        self.safe_state_at: float | None = None  # clock time it entered SAFE_STATE (tests)
+        self.hold_at: float | None = None  # plant time the watchdog made it hold
+        self.feedback_muted_from: float | None = None  # fault: no feedback from this time
         self.state = NodeState.DISABLED
         self.faults = Fault.NONE
         self._lock = threading.Lock()
@@ -65,7 +91,11 @@ class ActuatorController:
             self._setpoints.clear()
             self._last_seq = None
         elif cmd.command == CommandKind.START and self.state == NodeState.ENABLED:
-            self.state, self._start_sample, self._t_start = NodeState.RUNNING, cmd.start_sample, None
+            self.state, self._start_sample = NodeState.RUNNING, cmd.start_sample
+            self._t_start = None
+            self._start_arrived = self._clock() if self._clock is not None else None
+            if self._start_arrived is not None:  # ticks count the run from its arrival on
+                self._tick_origin = (self._start_arrived, cmd.start_sample)
             self._stopping = False
         elif cmd.command == CommandKind.STOP:
             if self.state == NodeState.RUNNING:
@@ -74,6 +104,7 @@ class ActuatorController:
                 self.state = NodeState.ENABLED
         elif cmd.command == CommandKind.SAFE_STATE:
             self.state, self._start_sample = NodeState.SAFE_STATE, None
+            self.safe_state_at = self._clock() if self._clock is not None else 0.0
 
     def target(self, t: float) -> float:
         """The position (m) to follow at plant time `t` (s); plant thread."""
@@ -81,7 +112,13 @@ class ActuatorController:
             if self.state != NodeState.RUNNING or self._start_sample is None:
                 return self._hold
             if self._t_start is None:
-                self._t_start = t  # START takes effect at the first grid point computed after it
+                if self._start_arrived is None:  # no clock: START acts at this grid point
+                    self._t_start = t
+                    self._tick_origin = (t, self._start_sample)
+                elif t < self._start_arrived:
+                    return self._hold  # a grid point before START arrived (module doc)
+                else:
+                    self._t_start = self._start_arrived
             i = self._start_sample + (t - self._t_start) * self.rate
             k = math.floor(i)
             have = self._setpoints
@@ -94,12 +131,29 @@ class ActuatorController:
             elif self._stopping and (not have or k > max(have)):
                 self.state, self._start_sample = NodeState.ENABLED, None  # done: hold the last
             elif not have or i - max(have) > WATCHDOG_S * self.rate:
+                if not self.faults & Fault.WATCHDOG_HOLD:
+                    self.hold_at = t
                 self.faults |= Fault.WATCHDOG_HOLD
             return self._hold
 
-    def feedback(self, sequence: int, position: float) -> can.Message:
-        """The feedback frame for measured `position` (m)."""
-        return cm.to_can(cm.Feedback(self.index, sequence, position, self.state, self.faults))
+    @property
+    def started_at(self) -> float | None:
+        """Plant time (s) the last START took effect; None before any."""
+        return self._t_start
+
+    def tick(self, t: float) -> int:
+        """The servo tick at plant time `t` (s): while RUNNING the setpoint index played."""
+        with self._lock:
+            origin_t, origin_tick = self._tick_origin
+        return origin_tick + math.floor((t - origin_t) * self.rate)
+
+    def feedback(self, t: float, position: float) -> can.Message:
+        """The feedback frame for `position` (m) measured at plant time `t` (s)."""
+        return cm.to_can(cm.Feedback(self.index, self.tick(t), position, self.state, self.faults))
+
+    def sends_feedback(self, t: float) -> bool:
+        """False once the fault `feedback_muted_from` has begun (a stalled feedback stream)."""
+        return self.feedback_muted_from is None or t < self.feedback_muted_from
 
 
 def heartbeat(node: int, counter: int, state: NodeState) -> can.Message:

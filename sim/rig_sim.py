@@ -9,6 +9,13 @@ Sensors: white noise of the configured rms, then whole counts (quantisation);
 each device clock runs at its own small offset and drift from the host's.
 `record_truth=True` keeps the noise-free value behind every sample sent, with
 its host time, for tests; it is never sent to the rig.
+
+Actuator feedback is measured at its own scheduled instant (100 Hz) from the
+plant's history and carries the servo tick of that instant (sim.devices), so a
+stalled loop sends late frames with the right content, as a real controller's
+transmit queue would. Fault injection (sim.faults): `faults=` at construction
+(what `sim serve --fault` sets), or live: `server.faults`, `mass_sensor.faults`,
+`stick_valve`, `stall_feedback`, `server.disconnect_clients()`, `server.stall(s)`.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from rig.config import RigConfig, Sensor
 from rig.geometry import x_components
 from sim.devices import ActuatorController, heartbeat, table_sample
 from sim.effects import Effect, with_effects
+from sim.faults import SimFaults
 from sim.plant import Plant
 from sim.pty_sensor import PtySensor
 from sim.socketcand_server import SocketcandServer
@@ -61,8 +69,10 @@ class SimRig:
     def __init__(self, config: RigConfig, seed: int = 0, effects: tuple[Effect, ...] = (),
                  model: IsolatorModel | None = None, record_truth: bool = False,
                  table_clock: SensorClock = SensorClock(3.0, 25.0),
-                 mass_clock: SensorClock = SensorClock(7.0, -40.0)) -> None:
+                 mass_clock: SensorClock = SensorClock(7.0, -40.0),
+                 faults: SimFaults | None = None) -> None:
         self.config, self.effects = config, effects
+        self.faults = faults or SimFaults()
         self._rng = np.random.default_rng(seed)
         self._rng_lock = threading.Lock()
         self._noise: list[float] = []
@@ -70,21 +80,22 @@ class SimRig:
         self.truth = Truth() if record_truth else None
         self.table_clock = table_clock
         rate = config.rates.setpoint
-        self.actuators = [ActuatorController(a.index, rate) for a in config.table.actuators]
+        self.actuators = [ActuatorController(a.index, rate, clock=time.monotonic)
+                          for a in config.table.actuators]
         t0 = time.monotonic()
         self.t0, self.wall0 = t0, time.time() - (time.monotonic() - t0)
         self.plant = Plant(with_effects(model or report_model("average"), effects),
                            self._targets, x_components(config),
                            np.array([a.max_velocity for a in config.table.actuators]), t0)
         self.plant.advance_to(t0 + 0.05)  # compiles the integrator now, not mid-run
-        self.server = SocketcandServer(bus_name=str(config.can.channel))
+        self.server = SocketcandServer(bus_name=str(config.can.channel), faults=self.faults.bus)
         for a in self.actuators:
             self.server.attach(a)
         self._mass_k = 0  # the sensor thread starts sampling at once: set its inputs first
         self._mass_clock = mass_clock
         self.mass_sensor = PtySensor(self._mass_counts, rate_hz=config.mass_sensor.sample_rate,
                                      baud=config.serial.baud, offset_s=mass_clock.offset_s,
-                                     drift_ppm=mass_clock.drift_ppm)
+                                     drift_ppm=mass_clock.drift_ppm, faults=self.faults.serial)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="sim-rig", daemon=True)
         self._thread.start()
@@ -96,6 +107,18 @@ class SimRig:
     @property
     def pty_path(self) -> str:
         return self.mass_sensor.path
+
+    def stick_valve(self, actuator: int, at: float | None = None) -> float:
+        """Fault: actuator `actuator`'s servovalve sticks at host time `at` (default now)
+        while its controller goes on claiming RUNNING; returns when it took effect."""
+        return self.plant.stick(actuator - 1, time.monotonic() if at is None else at)
+
+    def stall_feedback(self, actuator: int, at: float | None = None) -> float:
+        """Fault: actuator `actuator` sends no more feedback from host time `at` (default
+        now); it goes on following its setpoints. Returns `at`."""
+        at = time.monotonic() if at is None else at
+        self.actuators[actuator - 1].feedback_muted_from = at
+        return at
 
     def wall(self, t: float) -> float:
         """Wall-clock time (s, Unix) of host monotonic time `t`."""
@@ -118,7 +141,20 @@ class SimRig:
     # -- the plant's inputs and the sensors' outputs ------------------------------------
 
     def _targets(self, t: float) -> np.ndarray:
-        return np.array([a.target(t) for a in self.actuators])
+        targets = np.array([a.target(t) for a in self.actuators])
+        self._arm_faults(t)
+        return targets
+
+    def _arm_faults(self, t: float) -> None:
+        """Actuator faults set at construction begin a given time after that actuator's START."""
+        for fault, inject in ((self.faults.stuck_valve, self.stick_valve),
+                              (self.faults.stalled_feedback, self.stall_feedback)):
+            if fault is None or fault.armed:
+                continue
+            started = self.actuators[fault.actuator - 1].started_at
+            if started is not None and t >= started + fault.after_start_s:
+                fault.armed = True
+                inject(fault.actuator, t)
 
     def _noisy_counts(self, value: float, sensor: Sensor) -> int:
         """White noise, then whole counts; plain floats (numpy scalars cost ~10 µs here)."""
@@ -168,7 +204,7 @@ class SimRig:
                 out.append(self._table_frame(start + k_sensor * sensor_dt, k_sensor))
                 k_sensor += 1
             while start + k_feedback * feedback_dt <= now:
-                out += self._feedback(k_feedback, now)
+                out += self._feedback(start + k_feedback * feedback_dt)
                 k_feedback += 1
             while start + k_beat * beat_dt <= now:
                 out += self._heartbeats(k_beat)
@@ -188,9 +224,11 @@ class SimRig:
             self.truth.table.append((ts % (1 << 32), self.wall(t), u))
         return table_sample(counts, k, ts)
 
-    def _feedback(self, k: int, now: float) -> list[can.Message]:
-        ext = self.plant.extensions(now)  # now, not the chunk computed ahead
-        return [a.feedback(k, float(ext[a.index - 1])) for a in self.actuators]
+    def _feedback(self, t: float) -> list[can.Message]:
+        """Each actuator's feedback measured at `t` (s, past: the plant's history)."""
+        ext = self.plant.extensions(t)
+        return [a.feedback(t, float(ext[a.index - 1])) for a in self.actuators
+                if a.sends_feedback(t)]
 
     def _heartbeats(self, k: int) -> list[can.Message]:
         beats = [heartbeat(a.index, k, a.state) for a in self.actuators]

@@ -7,7 +7,10 @@ same to a JSON state file, which appears only once everything is ready:
      "port": 40321, "channel": "can0"}, "serial": {"path": "/dev/pts/5"}}
 
 Undeclared effects (`--effect quadratic_damping=2000`, sim.effects) change the
-physics or the mass sensor and are written nowhere the rig can read. The truth
+physics or the mass sensor and are written nowhere the rig can read. Faults
+(`--fault can_drop=0.01`, `--fault stuck_valve=3@0.5`, sim.faults) break the bus,
+the sensor or an actuator for the rig to notice. The CAN server listens on
+127.0.0.1 only (sim.socketcand_server refuses anything else). The truth
 file (`--truth-file`, tests only) gets the noise-free value behind every sensor
 sample, as .npz, when the process stops.
 """
@@ -28,6 +31,7 @@ import numpy as np
 from analysis.model.report_constants import RUNS, report_model
 from rig.config import load_config
 from sim.effects import parse_effect, with_effects
+from sim.faults import parse_faults
 from sim.plant import warm_up
 from sim.rig_sim import SimRig
 
@@ -43,6 +47,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--state-file", type=Path, help="write the endpoints here as JSON")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="an undeclared effect (see sim.effects); repeatable")
+    p.add_argument("--fault", action="append", default=[], metavar="NAME=VALUE",
+                   help="inject a fault (see sim.faults); repeatable")
     p.add_argument("--constants", default="average", choices=RUNS,
                    help="Table 1 column for the isolator (default average)")
     p.add_argument("--truth-file", type=Path, help="tests: noise-free samples to .npz at exit")
@@ -54,12 +60,13 @@ def run(args: argparse.Namespace) -> int:
     # switch interval (default 5 ms) for it, so the sensors fell behind real time.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     effects = tuple(parse_effect(e) for e in args.effect)
+    faults = parse_faults(args.fault)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     warm_up(with_effects(report_model(args.constants), effects))  # before the sensors run
     with SimRig(config, seed=args.seed, effects=effects, model=report_model(args.constants),
-                record_truth=args.truth_file is not None) as rig:
+                record_truth=args.truth_file is not None, faults=faults) as rig:
         state = {"pid": os.getpid(),
                  "can": {"interface": "socketcand", "host": rig.server.host,
                          "port": rig.can_port, "channel": rig.server.bus_name},

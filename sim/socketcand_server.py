@@ -89,7 +89,7 @@ class RelayStats:
 
     frames_in: int = 0
     frames_relayed: int = 0
-    frames_dropped: int = 0
+    frames_dropped: int = 0  # by drop_prob or while the bus was stalled
     frames_duplicated: int = 0
     frames_reordered: int = 0
     error_frames: int = 0
@@ -151,6 +151,7 @@ class SocketcandServer:
         self._inbox: deque[Callable[[], None]] = deque()
         self._held: _Frame | None = None
         self._held_until = 0.0  # monotonic s
+        self._stalled_until = 0.0  # monotonic s: no frame reaches the bus before then
         self._stopping = False
         self._closed = False
         self._close_lock = threading.Lock()
@@ -223,6 +224,11 @@ class SocketcandServer:
     def inject_error_burst(self, count: int = 10, error_class: int = CAN_ERR_PROT) -> None:
         """Send `count` error frames of SocketCAN class `error_class` to every client."""
         self._call_soon(lambda: self._error_burst(count, error_class))
+
+    def stall(self, seconds: float) -> None:
+        """A stalled bus: every frame offered in the next `seconds` is lost, nobody is
+        disconnected (a babbling node, a controller in error-passive, a frozen gateway)."""
+        self._stalled_until = time.monotonic() + seconds
 
     def disconnect_clients(self) -> None:
         """Bus-off: reset every client connection; clients see a CanError on recv."""
@@ -368,7 +374,7 @@ class SocketcandServer:
         self._stats.frames_in += 1
         fs.frames_seen += 1
         u = fs.rng.random()
-        if u < f.drop_prob:
+        if u < f.drop_prob or self._stalled_until > time.monotonic():
             self._stats.frames_dropped += 1
         elif u < f.drop_prob + f.duplicate_prob:
             self._stats.frames_duplicated += 1

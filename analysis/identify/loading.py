@@ -23,7 +23,7 @@ import numpy as np
 
 from analysis.identify.pipeline import MeasuredRun
 from rig.errors import DataError
-from rig.runfile import open_run
+from rig.runfile import RunFile, check_readable, open_run
 from rig.units import to_si
 
 UNITS = ("m", "in")
@@ -72,8 +72,15 @@ def _unique(stem: str, taken: set[str]) -> str:
 def _read_csv(path: Path, units: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if units is not None and units not in UNITS:
         raise DataError(f"unknown units {units!r} (known: {', '.join(UNITS)})")
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except UnicodeDecodeError as e:  # a binary or corrupt file given as CSV
+        raise DataError(f"{path}: not a UTF-8 text CSV (byte {e.start}: {e.reason})") from None
+    except csv.Error as e:  # a NUL byte, a field beyond the csv module's limit
+        raise DataError(f"{path}: not a readable CSV: {e}") from None
+    except OSError as e:  # a directory, no permission
+        raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
     if not rows:
         raise DataError(f"{path}: empty file")
     columns = {}
@@ -121,7 +128,8 @@ def _column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
 
 def _read_runfile(path: Path, warnings: list[str]
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    run = open_run(path, raw=False)
+    check_readable(path, _read_channels)  # HDF5 may hang or crash on a damaged file
+    run = _read_channels(path)
     if not run.status.complete:
         raise DataError(f"{path}: run is not complete (exit status {run.status.state}"
                         + (f": {run.status.reason}" if run.status.reason else "") + ")")
@@ -145,6 +153,10 @@ def _read_runfile(path: Path, warnings: list[str]
                         f"need {MIN_DURATION} s")
     t = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1)
     return t, np.interp(t, cu.time, cu.value), np.interp(t, cx.time, cx.value)
+
+
+def _read_channels(path: Path) -> RunFile:
+    return open_run(path, raw=False)
 
 
 def _check_time(path: Path, t: np.ndarray, what: str) -> None:
