@@ -41,8 +41,7 @@ def send_safe_state(bus: can.BusABC, config: RigConfig, bus_dead: bool = False) 
     frame = cm.to_can(safe_state())
     if not bus_dead:
         try:
-            for _ in range(COMMAND_REPEATS):
-                bus.send(frame)
+            _send_repeated(bus, frame)
             return True
         except (can.CanError, OSError, ValueError) as exc:
             log.warning("could not send SAFE_STATE on the run's bus: %s", one_line(exc))
@@ -52,8 +51,7 @@ def send_safe_state(bus: can.BusABC, config: RigConfig, bus_dead: bool = False) 
         log.warning("could not reach the bus again for SAFE_STATE: %s", one_line(exc))
         return False
     try:
-        for _ in range(COMMAND_REPEATS):
-            fresh.send(frame)
+        _send_repeated(fresh, frame)
         return True
     except (can.CanError, OSError, ValueError) as exc:
         log.warning("could not send SAFE_STATE on a fresh connection: %s", one_line(exc))
@@ -80,3 +78,9 @@ def one_line(exc: BaseException, limit: int = 200) -> str:
     """An exception's message on one line (python-can embeds a traceback in some)."""
     text = " ".join(str(exc).split("Traceback")[0].split()) or type(exc).__name__
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _send_repeated(bus: can.BusABC, frame: can.Message) -> None:
+    """COMMAND_REPEATS copies: a frame lost on a faulty bus must not leave a node moving."""
+    for _ in range(COMMAND_REPEATS):
+        bus.send(frame)

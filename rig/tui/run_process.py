@@ -17,7 +17,6 @@ thread turns "estop" into `control.emergency_stop()`, and so does the pipe's end
 from __future__ import annotations
 
 import queue
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,6 +30,7 @@ from types import MappingProxyType
 from rig.config import RigConfig
 from rig.live import LiveStatus, RunControl
 from rig.profile import Profile
+from rig.tui.child import spawn_child
 
 ESTOP = "estop"
 JOIN_S = 30.0  # the child ends within ms of the run; a sim start is not done here
@@ -45,22 +45,14 @@ class RunProcess:
     """
 
     def __init__(self, config: RigConfig, profile: Profile, text: str, out_dir: Path) -> None:
-        ours, theirs = socket.socketpair()
         self._lock = threading.Lock()
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed in join()
         self.stderr_tail = ""  # the child's last stderr line, once joined
         try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "rig.tui.run_process", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL, stderr=self._stderr, start_new_session=True)
+            self._proc, self._conn = spawn_child("rig.tui.run_process", self._stderr)
         except BaseException:
-            ours.close()
             self._stderr.close()
             raise
-        finally:
-            theirs.close()  # ours only: EOF reaches us when the child ends
-        self._conn = Connection(ours.detach())
         self._conn.send((to_wire(config), profile, text, str(out_dir)))
 
     @property

@@ -13,7 +13,6 @@ TUI's end of the pipe closes (the TUI gone); the sim stops if the host dies.
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import tempfile
@@ -21,6 +20,7 @@ from multiprocessing.connection import Connection
 
 from rig.config import RigConfig
 from rig.errors import RigError
+from rig.tui.child import spawn_child
 from rig.tui.run_process import from_wire, to_wire
 
 STOP = "stop"
@@ -31,20 +31,12 @@ class SimHost:
     """`sim serve` running for the session; `config` points at it; `stop()` ends both."""
 
     def __init__(self, config: RigConfig, sim_args: tuple[str, ...] = ()) -> None:
-        ours, theirs = socket.socketpair()
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed in stop()
         try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "rig.tui.sim_host", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL, stderr=self._stderr, start_new_session=True)
+            self._proc, self._conn = spawn_child("rig.tui.sim_host", self._stderr)
         except BaseException:
-            ours.close()
             self._stderr.close()
             raise
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
         try:
             self._conn.send((to_wire(config), sim_args))
             kind, payload = self._conn.recv()
