@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections import Counter
 from pathlib import Path
 
+import numba
+import numpy as np
 from scipy.signal import savgol_filter
 
 from analysis.loop import LoopRun, close_loop
@@ -65,9 +68,33 @@ def wall_time(repeat: int = 2) -> dict[str, float]:
 
     base = min(_timed(sim3) for _ in range(5))
     loop = min(_timed(lambda: close_loop(model, runs)) for _ in range(repeat))
+    work = _simulation_work(lambda: close_loop(model, runs))
     print(f"close_loop, 3 runs x 3 s at 1 kHz, one effect: {loop:.2f} s (target 5 s) = "
-          f"{loop / base:.0f} x one simulation of the 3 runs ({base * 1e3:.1f} ms)", flush=True)
-    return {"loop_s": loop, "simulation_s": base}
+          f"{loop / base:.0f} x one simulation of the 3 runs ({base * 1e3:.1f} ms); "
+          f"{work['rows']} run-simulations in {work['rounds']} rounds on {work['cores']} cores",
+          flush=True)
+    return {"loop_s": loop, "simulation_s": base, **work}
+
+
+def _simulation_work(fn) -> dict[str, int]:
+    """Run-simulations (rows x runs) and parallel rounds the loop's predictions take."""
+    refit_module = sys.modules["analysis.loop.refit"]
+    batch = refit_module.simulate_batch
+    cores = max(numba.get_num_threads(), 1)
+    work = {"rows": 0, "rounds": 0, "cores": cores}
+
+    def counted(model, vectors, *args, **kwargs):
+        rows = np.atleast_2d(vectors).shape[0]
+        work["rows"] += rows
+        work["rounds"] += -(-rows // cores)
+        return batch(model, vectors, *args, **kwargs)
+
+    refit_module.simulate_batch = counted
+    try:
+        fn()
+    finally:
+        refit_module.simulate_batch = batch
+    return work
 
 
 def _timed(fn) -> float:

@@ -10,9 +10,21 @@ Why chunked calls into `analysis.simulate` rather than a Python RK4 per step:
 the compiled integrator is the one the analysis fits with (dead band, static
 friction with event location, stateful terms), so the simulated rig and the
 analysis cannot disagree about the model; one call per 20 ms costs ~0.3 ms.
-Each chunk's table motion is the cubic Hermite through the actuators' positions
-and velocities at the grid points (C¹ across chunks), and the state (z, ż and
-the terms' internal states) carries from one chunk into the next.
+Each chunk's table motion is the quintic Hermite through the actuators' positions,
+velocities and accelerations at the grid points (C² across grid points and
+chunks), padded by one step each side, and the state (z, ż and the terms'
+internal states) carries from one chunk into the next.
+
+Why C², padded: the integrator is RK4 on fixed steps whose last stage reads the
+table acceleration at the step's end, a grid point; a cubic Hermite's ü jumps
+there (and the first-order lag's own ü jumps wherever the target's slope
+changes), and at a chunk's first and last point the integrator holds the motion
+(ü = 0). Each of those stages was wrong by the jump, always the same sign along
+a ramp: measured on run A, the served x was 1.6 mm off the converged solution
+of the same plant by the end of the first ramp and 40 mm after the return, run
+C 0.45 mm RMS, which no model of the table motion can reproduce. One ü per grid
+point makes the motion C², and the quintic still passes through the exact
+positions and velocities, so each step's velocity change is the servo's own.
 
 The actuators are servo-hydraulic: position follows the setpoint with a
 first-order lag `tau` and the servovalve's velocity limit (flow / area).
@@ -33,10 +45,13 @@ from scipy.interpolate import PPoly
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
 from analysis.simulate import simulate
+from analysis.table_motion import quintic_hermite
 
 SERVO_TAU = 0.005  # s, first-order lag of a servo-hydraulic actuator (~30 Hz bandwidth)
 DT = 1e-3  # s, plant grid
 CHUNK = 20  # steps per call into the integrator
+SUBSTEPS = 4  # RK4 steps per grid step: the lag's ü kinks inside a step cost 7.7 µm RMS of x
+# on run A at 1, 2.5 µm at 4 (against 0.05 ms steps); 4 cost ~10 % more than 1 per chunk
 
 
 @dataclass
@@ -49,6 +64,8 @@ class ServoAxis:
     target: float | None = None  # m, the last step's target
     stuck: bool = False  # a stuck servovalve: no flow, the piston stays put
 
+    acceleration: float = 0.0  # m/s², p'' at the last grid point (end of the last step)
+
     def step(self, target: float, dt: float, tau: float = SERVO_TAU) -> None:
         """Advance one step toward `target` (m): first-order lag, then the rate limit.
 
@@ -60,7 +77,7 @@ class ServoAxis:
         acceleration of hundreds of m/s² (measured: 760 m/s² on run A's 20 m/s² ramp).
         """
         if self.stuck:
-            self.velocity, self.target = 0.0, target
+            self.velocity, self.acceleration, self.target = 0.0, 0.0, target
             return
         r0 = self.position if self.target is None else self.target
         slope = (target - r0) / dt
@@ -70,6 +87,8 @@ class ServoAxis:
         self.position += min(max(new - self.position, -limit), limit)
         rate = (target - self.position) / tau  # p' at the end of the step
         self.velocity = min(max(rate, -self.max_velocity), self.max_velocity)
+        # p'' = (r' − p')/τ at the end of the step (its left limit); 0 while rate-limited
+        self.acceleration = (slope - rate) / tau if rate == self.velocity else 0.0
         self.target = target
 
 
@@ -95,6 +114,7 @@ class Plant:
         self._steps = 0  # grid points computed so far beyond t0
         # the whole history (1 kHz × a few minutes is small): the truth the tests compare to
         self._t, self._u, self._x = [t0], [0.0], [0.0]
+        self._ud, self._udd, self._xd = [0.0], [0.0], [0.0]  # for interpolation in `at`
         self._ext: list[np.ndarray] = [np.zeros(6)]
         self._stuck_from: list[float | None] = [None] * len(self.axes)
         self._advancing = threading.RLock()  # one thread computes chunks at a time
@@ -124,9 +144,9 @@ class Plant:
     def _chunk(self) -> None:
         n, dt = self.chunk, self.dt
         ts = self.computed_until + dt * np.arange(n + 1)
-        u, ud = np.empty(n + 1), np.empty(n + 1)
+        u, ud, udd = np.empty(n + 1), np.empty(n + 1), np.empty(n + 1)
         ext = np.empty((n, 6))
-        u[0], ud[0] = self._table()
+        u[0], ud[0], udd[0] = self._table()
         for k in range(1, n + 1):
             target = self._targets(float(ts[k]))
             for axis, r, stuck in zip(self.axes, target, self._stuck_from):
@@ -134,10 +154,10 @@ class Plant:
                     axis.stuck = True
                 axis.step(float(r), dt)
             ext[k - 1] = [a.position for a in self.axes]
-            u[k], ud[k] = self._table()
-        motion = _hermite(ts, u, ud)
+            u[k], ud[k], udd[k] = self._table()
+        motion = _quintic(ts, u, ud, udd)
         r = simulate(self.model, motion, duration=n * dt, dt=dt, t0=float(ts[0]),
-                     z0=self._z, zd0=self._zd, s0=self._s)
+                     substeps=SUBSTEPS, z0=self._z, zd0=self._zd, s0=self._s)
         self._z, self._zd = float(r.z[-1]), float(r.zd[-1])
         for j, term in ((j, self.model.terms[j]) for j in self._stateful):
             self._s[j] = r.states[term.name][-1]
@@ -145,18 +165,27 @@ class Plant:
             self._t.extend(ts[1:].tolist())
             self._u.extend(u[1:].tolist())
             self._x.extend((r.z[1:] + u[1:]).tolist())
+            self._ud.extend(ud[1:].tolist())
+            self._udd.extend(udd[1:].tolist())
+            self._xd.extend((r.zd[1:] + ud[1:]).tolist())
             self._ext.extend(ext)
             self._steps += n
 
-    def _table(self) -> tuple[float, float]:
-        """Platform x displacement and velocity: least squares over the actuators' extensions."""
+    def _table(self) -> tuple[float, float, float]:
+        """Platform x displacement, velocity and acceleration: least squares over the
+        actuators' extensions."""
         n = self._nx  # plain floats: numpy costs more than it saves on six numbers
         u = sum(w * a.position for w, a in zip(n, self.axes))
         v = sum(w * a.velocity for w, a in zip(n, self.axes))
-        return u / self._norm, v / self._norm
+        acc = sum(w * a.acceleration for w, a in zip(n, self.axes))
+        return u / self._norm, v / self._norm, acc / self._norm
 
     def at(self, t: float) -> tuple[float, float]:
         """(u, x) in m at host time `t` (s), interpolated on the grid; held before its start.
+
+        u is the quintic the isolator was driven with, x the cubic Hermite through the
+        mass's position and velocity: linear interpolation was up to h²ü/8 off
+        (7 µm in run C's ramp, a quarter of the sensor noise, always the same sign).
 
         A sensor asking past the computed grid (the loop thread that keeps it a chunk
         ahead was starved of CPU) computes the missing chunks itself: holding the last
@@ -170,8 +199,11 @@ class Plant:
             if len(self._t) == 1:
                 return self._u[0], self._x[0]
             w = min(max(i - k, 0.0), 1.0)
-            return (self._u[k] + w * (self._u[k + 1] - self._u[k]),
-                    self._x[k] + w * (self._x[k + 1] - self._x[k]))
+            h = self.dt
+            u = _quintic_at(w, h, self._u[k], self._ud[k], self._udd[k],
+                            self._u[k + 1], self._ud[k + 1], self._udd[k + 1])
+            x = _cubic_at(w, h, self._x[k], self._xd[k], self._x[k + 1], self._xd[k + 1])
+            return u, x
 
     def extensions(self, t: float) -> np.ndarray:
         """(6,) actuator extensions (m) at the grid point at or before host time `t` (s)."""
@@ -195,15 +227,48 @@ def warm_up(model: IsolatorModel) -> None:
     """
     ts = DT * np.arange(CHUNK + 1)
     zeros = np.zeros(CHUNK + 1)
-    simulate(model, _hermite(ts, zeros, zeros), duration=CHUNK * DT, dt=DT, t0=0.0, z0=0.0,
+    simulate(model, _quintic(ts, zeros, zeros, zeros), duration=CHUNK * DT, dt=DT, t0=0.0, z0=0.0,
              zd0=0.0, s0=np.zeros(len(model.terms)))
 
 
-def _hermite(t: np.ndarray, u: np.ndarray, ud: np.ndarray) -> PPoly:
-    """The cubic Hermite through (t, u, u̇) as a PPoly (scipy's class costs 0.5 ms a call)."""
+def _quintic(t: np.ndarray, u: np.ndarray, ud: np.ndarray, udd: np.ndarray) -> PPoly:
+    """The quintic Hermite through (t, u, u̇, ü) as a PPoly, padded by one step each side.
+
+    C²: the integrator's last RK4 stage of a step reads ü at the next piece's start,
+    which equals this piece's end. The padding (the first and last pieces continued)
+    keeps the chunk's ends inside the breaks, where the integrator would hold u.
+    """
     h = np.diff(t)
-    du = np.diff(u)
-    m0, m1 = ud[:-1], ud[1:]
-    c = np.array([(h * (m0 + m1) - 2 * du) / h**3, (3 * du - h * (2 * m0 + m1)) / h**2,
-                  m0, u[:-1]])
-    return PPoly(c, t)
+    c = quintic_hermite(t, u, ud, udd).c
+    first = _shifted(c[:, 0], -h[0])
+    last = _shifted(c[:, -1], h[-1])
+    return PPoly(np.column_stack([first, c, last]), np.r_[t[0] - h[0], t, t[-1] + h[-1]])
+
+
+def _shifted(c: np.ndarray, a: float) -> np.ndarray:
+    """Coefficients (highest first) of q(y) = p(y + a) for p with coefficients `c`."""
+    out = np.zeros_like(c)
+    for coef in c:  # Horner on polynomials: q = q·(y + a) + coef
+        out = np.r_[out[1:], 0.0] + a * out
+        out[-1] += coef
+    return out
+
+
+def _quintic_at(w: float, h: float, p0: float, v0: float, a0: float, p1: float, v1: float,
+                a1: float) -> float:
+    """The quintic Hermite of `_quintic` at the fraction w of a step h; plain floats."""
+    d = p1 - (p0 + v0 * h + 0.5 * a0 * h * h)
+    e = v1 - (v0 + a0 * h)
+    f = a1 - a0
+    s = w * h
+    c3 = (10 * d - 4 * e * h + 0.5 * f * h * h) / h**3
+    c4 = (-15 * d + 7 * e * h - f * h * h) / h**4
+    c5 = (6 * d - 3 * e * h + 0.5 * f * h * h) / h**5
+    return p0 + s * (v0 + s * (0.5 * a0 + s * (c3 + s * (c4 + s * c5))))
+
+
+def _cubic_at(w: float, h: float, p0: float, v0: float, p1: float, v1: float) -> float:
+    """The cubic Hermite through (p, v) at both ends of a step h, at its fraction w."""
+    w2, w3 = w * w, w * w * w
+    return ((2 * w3 - 3 * w2 + 1) * p0 + (w3 - 2 * w2 + w) * h * v0
+            + (-2 * w3 + 3 * w2) * p1 + (w3 - w2) * h * v1)

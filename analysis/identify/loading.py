@@ -5,7 +5,28 @@ CSV: a header row, then one sample per row; columns `t` (s), `u` (table) and
 may carry its unit in brackets (`u [in]`, as `sim response` writes); it must
 then agree with `--units` when both are given. Run files: channels `table_u`
 and `mass_x` (metres), sampled by different sensors, so both are put on one
-uniform grid at the slower channel's rate over the time they share.
+uniform grid at the slower channel's rate over the time they share, laid on the
+mass sensor's own sampling instants: x, which output error fits sample by sample
+against its noise σ_x, keeps its samples as they are; u, which only the table
+motion's fit reads (`analysis.table_motion`, whose σ_u allows for it), is
+interpolated. A grid between x's samples made each x a weighted mean of two,
+down to 0.71 σ_x of noise at mid-way, which the third-difference σ_x reads as
+0.41 σ_x: a right model would have shown resid/noise up to 1.7.
+
+Each sensor channel's times are first put back on one straight line of its
+sample index: the rig places a sample on its clock fit as that stands when the
+sample is written (rig.recorder, half a second after arrival) and only the last
+half second on the final fit of the whole run, so a channel's times step by up to
+0.1 ms wherever the fit moved (measured on a campaign: 0.05–0.11 ms peak to peak
+on the table channel). A sensor samples on its own steady clock, so the final
+fit's line, extended over the whole channel, places every sample as the last
+ones are (measured: 2–11 µs peak to peak). Kept as written when the times do not
+lie within a quarter sample of one line (a clock that stepped, a reboot).
+
+Plausibility (a warning, the data is still used): a displacement that moves
+faster than any isolator test could (MAX_SPEED, twice the fastest step-pulse
+and the actuators' 2.7 m/s) between two samples, beyond its noise — the
+staircase of a sensor repeating its last value while the table moves.
 
 Anything unusable raises `DataError` naming the file, the rule and the value;
 anything usable but imperfect (a non-uniform clock that was resampled) is
@@ -30,6 +51,9 @@ UNITS = ("m", "in")
 MIN_SAMPLES = 200  # the shortest ramp of interest (0.12 s) at 1 kHz plus rests
 MIN_DURATION = 0.2  # s
 JITTER = 0.01  # of the median step: a clock steadier than this is taken as uniform
+REFIT_STEP = 5e-6  # s: a jump in a channel's times beyond its µs rounding: the fit moved
+MAX_SPEED = 5.0  # m/s: run C peaks at 2.2 m/s, the actuators' valves allow 2.7 m/s
+JUMP_NOISE = 8.0  # σ of a difference (√2 σ of the samples) a jump must exceed besides
 HEADER = re.compile(r"^\s*([^\[\]]+?)\s*(?:\[\s*([^\]]+?)\s*\])?\s*$")
 
 
@@ -56,6 +80,9 @@ def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loade
         else:
             t, u, x = _read_csv(path, units)
         t, u, x = _uniform(path, t, u, x, out.warnings)
+        if path.suffix.lower() not in (".h5", ".hdf5"):  # run files: checked per channel
+            for column, v in (("u", u), ("x", x)):
+                _check_speed(path, column, t, v, out.warnings)
         name = _unique(path.stem, names)
         out.runs.append(MeasuredRun(name, t, u, x, float(mass)))
     return out
@@ -142,17 +169,64 @@ def _read_runfile(path: Path, warnings: list[str]
     cu, cx = run.channels["table_u"], run.channels["mass_x"]
     for c in (cu, cx):
         _check_time(path, c.time, c.name)
+        _check_speed(path, c.name, c.time, c.value, warnings)
+    tu, tx = _final_fit_times(cu.time), _final_fit_times(cx.time)
     if run.gaps:
         warnings.append(f"{path}: {sum(g.count for g in run.gaps)} samples missing in "
                         f"{len(run.gaps)} gaps; interpolated across them")
-    # the sensors run on their own clocks: one grid at the slower rate over the common span
-    dt = max(float(np.median(np.diff(cu.time))), float(np.median(np.diff(cx.time))))
-    t0, t1 = max(cu.time[0], cx.time[0]), min(cu.time[-1], cx.time[-1])
+    # the sensors run on their own clocks: one grid at the slower rate over the common span,
+    # starting on a sample of x (module doc)
+    dt = max(float(np.median(np.diff(tu))), float(np.median(np.diff(tx))))
+    t0, t1 = max(tu[0], tx[0]), min(tu[-1], tx[-1])
     if t1 - t0 < MIN_DURATION:
         raise DataError(f"{path}: the two channels overlap for {max(t1 - t0, 0):.3f} s, "
                         f"need {MIN_DURATION} s")
+    first = int(np.searchsorted(tx, t0 - 1e-9 * dt))
+    if first < tx.size and tx[first] < t1 - MIN_DURATION:
+        t0 = float(tx[first])
     t = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1)
-    return t, np.interp(t, cu.time, cu.value), np.interp(t, cx.time, cx.value)
+    return t, np.interp(t, tu, cu.value), np.interp(t, tx, cx.value)
+
+
+def _final_fit_times(t: np.ndarray) -> np.ndarray:
+    """A channel's times on the line of its last stretch without a step (module doc)."""
+    dt = float(np.median(np.diff(t)))
+    k = np.round((t - t[0]) / dt)  # sample index; a missing sample is a skipped index
+    steps = np.flatnonzero(np.abs(np.diff(t) - dt * np.diff(k)) > REFIT_STEP)
+    last = steps[-1] + 1 if steps.size else 0
+    if t.size - last < 50:  # too short to carry a rate: the line through all
+        last = 0
+    A = np.c_[np.ones(t.size - last), k[last:]]
+    (a, b), *_ = np.linalg.lstsq(A, t[last:], rcond=None)
+    line = a + b * k
+    if np.max(np.abs(line - t)) > 0.25 * dt or np.any(np.diff(line) <= 0):
+        return t
+    return line
+
+
+def _check_speed(path: Path, name: str, t: np.ndarray, v: np.ndarray,
+                 warnings: list[str]) -> None:
+    """Warn (one line) when v jumps between two samples faster than a test moves.
+
+    Values or times that are not finite, or times that do not advance, are other
+    rules' business (they raise DataError later): this check only looks past them.
+    """
+    if v.size < 3 or not (np.all(np.isfinite(v)) and np.all(np.diff(t) > 0)):
+        return
+    with np.errstate(all="ignore"):
+        dv, dt = np.abs(np.diff(v)), np.diff(t)
+        d2 = np.diff(v, 2)
+        sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+        allowed = MAX_SPEED * dt + JUMP_NOISE * np.sqrt(2.0) * sigma
+        jumps = np.flatnonzero(dv > allowed)
+        if not jumps.size:
+            return
+        k = int(jumps[np.argmax(dv[jumps] / dt[jumps])])
+        jump_mm, dt_ms, speed = dv[k] * 1e3, dt[k] * 1e3, dv[k] / dt[k]
+    warnings.append(f"{path}: {name} jumps {jumps.size} times faster than any isolator test "
+                    f"moves (largest {jump_mm:.3g} mm in {dt_ms:.3g} ms at "
+                    f"t = {t[k + 1]:.6g} s, {speed:.3g} m/s; at most {MAX_SPEED:g} m/s "
+                    f"expected): a sensor holding its last value? Data used as is")
 
 
 def _read_channels(path: Path) -> RunFile:

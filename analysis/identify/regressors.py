@@ -50,6 +50,27 @@ def _series(code, gated, a, b, c, z, zd, delta, dt, s0, out):
     return s
 
 
+def state_after(code: int, shape: tuple[float, ...], zd: np.ndarray, dt: float,
+                s0: float) -> float:
+    """A motion-driven term state (Bouc–Wen r, fluid θ) at the end of the sampled ż."""
+    zd = np.ascontiguousarray(zd, float)
+    a, b, c = tuple(shape) + (0.0,) * (3 - len(shape))
+    return float(_series(code, False, a, b, c, zd, zd, 0.0, dt, s0, np.empty(zd.size)))
+
+
+def term_column(model: IsolatorModel, j: int, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
+    """Term j's column of `regressor_matrix`: its basis at every sample (stateless terms)."""
+    t = model.terms[j]
+    if kind(t.kind).has_state:
+        raise ValueError(f"term {t.name!r} ({t.kind}) has internal state")
+    codes, gated = model.structure()
+    shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
+    col = np.empty(z.size)
+    _series(codes[j], gated[j], *shape, np.ascontiguousarray(z, float),
+            np.ascontiguousarray(zd, float), model.dead_band, 1.0, 0.0, col)
+    return col
+
+
 def campaign_regressors(model: IsolatorModel, z: Sequence[np.ndarray],
                         zd: Sequence[np.ndarray], dt: float) -> np.ndarray:
     """Z (Σn, J): each term's basis on every sample of the runs, in order."""

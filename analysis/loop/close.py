@@ -343,12 +343,33 @@ def _loro_refit(fit: Fit, cand: Fit, free: list[str], name: str, c: Candidate,
     base_ss, cand_ss = [], []
     for k in range(len(data)):
         others = [i for i in range(len(data)) if i != k]
-        b = _refit(fit.hypothesis, data, free, {}, others, max_nfev=15)
+        b = _fold_refit(fit, data, free, others)
         a = _refit(cand.hypothesis, data, free + [name], {name: c}, others, max_nfev=15)
         for h, out in ((b.hypothesis, base_ss), (a.hypothesis, cand_ss)):
             x = predict(h, data[: k + 1])[k][0]
             out.append(float(np.sum(((x - data[k].x) / data[k].sigma_x) ** 2)))
     return base_ss, cand_ss
+
+
+_FOLDS: list[tuple[Fit, tuple[RunData, ...], tuple[str, ...], tuple[int, ...], Fit]] = []
+
+
+def _fold_refit(fit: Fit, data: Sequence[RunData], free: list[str], others: list[int]) -> Fit:
+    """The model without the candidate refitted on the runs `others`, remembered: every
+    candidate of a step that reaches the fold-by-fold check needs the same refits."""
+    for f0, d0, free0, others0, fold in _FOLDS:
+        if (f0 is fit and free0 == tuple(free) and others0 == tuple(others)
+                and _same(d0, data)):
+            return fold
+    fold = _refit(fit.hypothesis, data, free, {}, others, max_nfev=15)
+    _FOLDS.append((fit, tuple(data), tuple(free), tuple(others), fold))
+    del _FOLDS[:-6]
+    return fold
+
+
+def _same(a: Sequence[object], b: Sequence[object]) -> bool:
+    """The same objects, in order (runs hold arrays: compared by identity, not value)."""
+    return len(a) == len(b) and all(x is y for x, y in zip(a, b))
 
 
 def _loro(fit: Fit) -> list[float]:
@@ -384,15 +405,30 @@ def _diagnose(fit: Fit, runs: Sequence[LoopRun]) -> Diagnosis:
     return diagnose(fit.residuals, z, zd, [r.ud for r in runs], runs[0].data.dt)
 
 
+_PREDICTED: list[tuple[Hypothesis, tuple[RunData, ...], list[np.ndarray]]] = []
+
+
+def _predicted(h: Hypothesis, runs: Sequence[LoopRun]) -> list[np.ndarray]:
+    """predict(h, runs' data), remembered: each fit's runs are reported several times."""
+    data = tuple(r.data for r in runs)
+    for h0, d0, pred in _PREDICTED:
+        if h0 is h and _same(d0, data):
+            return pred
+    pred = predict(h, data)
+    _PREDICTED.append((h, data, pred))
+    del _PREDICTED[:-8]
+    return pred
+
+
 def _states(fit: Fit, runs: Sequence[LoopRun]) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Measured-side z and ż of each run, from the prediction (free of differentiation noise)."""
-    pred = predict(fit.hypothesis, [r.data for r in runs])
+    pred = _predicted(fit.hypothesis, runs)
     z = [p[0] - r.data.motion(r.data.t) for p, r in zip(pred, runs)]
     return z, [np.gradient(v, r.data.t) for v, r in zip(z, runs)]
 
 
 def _signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.ndarray:
-    pred = predict(fit.hypothesis, [r.data for r in runs])
+    pred = _predicted(fit.hypothesis, runs)
     z = [p[0] - r.data.motion(r.data.t) for p, r in zip(pred, runs)]
     zd = [np.gradient(v, r.data.t) for v, r in zip(z, runs)]
     out = {"z": z, "zd": zd, "t": [r.data.t for r in runs], "x": [p[0] for p in pred],
@@ -402,7 +438,7 @@ def _signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.ndarray:
 
 def run_errors(fit: Fit, runs: Sequence[LoopRun]) -> dict[str, dict[str, float]]:
     """Per run: NRMSE of z, ż, ẍ (fractions), RMS of m(ẍ_meas − ẍ_model) in N, residual/noise."""
-    pred = predict(fit.hypothesis, [r.data for r in runs])
+    pred = _predicted(fit.hypothesis, runs)
     m = fit.hypothesis.model.mass
     out = {}
     for p, r in zip(pred, runs):

@@ -21,12 +21,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
+from scipy.interpolate import PPoly
 from scipy.optimize import least_squares
 
-from analysis.identify.output_error import RunData, initial_offset
+from analysis.identify.output_error import RunData, start_state
+from analysis.identify.regressors import state_after
 from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS
 from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import BOUC_WEN
 from analysis.simulate import simulate_batch
 
 UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
@@ -69,24 +73,81 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
         else:
             V[:, idx[n]] = rows[:, j]
     thermal = [(j, t.shape) for j, t in enumerate(h.model.terms) if t.kind == "thermal_damper"]
+    hysteretic = [(j, t.shape) for j, t in enumerate(h.model.terms) if t.kind == "bouc_wen"]
     S0 = np.zeros((rows.shape[0], len(h.model.terms)))
     out = []
+    z_end = None
     for run in runs:
         # each row starts at rest where its own sensor map says the mass was
         x = np.empty((V.shape[0], run.t.size))
-        starts = np.array([initial_offset(run, g) for g in gain])
+        starts = np.array([start_state(run, g, h.model.dead_band) for g in gain])
+        if z_end is not None:
+            for j, (a, b) in hysteretic:  # the seals follow the mass's settling between runs
+                S0[:, j] = hysteresis_along(S0[:, j], z_end, starts[:, 0], a, b)
         zd_all = np.empty_like(x)
-        for z0 in np.unique(starts):
-            rows_z0 = starts == z0
+        for z0, zd0 in np.unique(starts, axis=0):
+            rows_z0 = np.all(starts == (z0, zd0), axis=1)
             b = simulate_batch(h.model, V[rows_z0], run.motion, duration=run.t[-1] - run.t[0],
-                               dt=run.dt, t0=run.t[0], s0=S0[rows_z0], z0=z0)
+                               dt=run.dt, t0=run.t[0], s0=S0[rows_z0], z0=z0, zd0=zd0)
             x[rows_z0] = b.z + b.u
             zd_all[rows_z0] = b.zd
         out.append(np.stack([(1.0 + g) * np.interp(run.t - d, run.t, xr)
                              for g, d, xr in zip(gain, delay, x)]))
         for j, (heating, tau) in thermal:
             S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
+        for j, (a, b) in hysteretic:  # the seals stay loaded while the mass rests
+            S0[:, j] = hysteresis_after(S0[:, j], zd_all, run.dt, a, b)
+        z_end = x[:, -1] - run.motion(run.t[-1])
+        if hysteretic:  # the mass swings on after the run is cut: follow it to rest
+            z_end = _settle(h, V, S0, hysteretic, z_end, zd_all[:, -1],
+                            float(run.motion(run.t[-1])), run.dt)
     return out
+
+
+SETTLE = 3.0  # s: many times the isolator's slowest decay (m/c1 ≈ 0.45 s)
+
+
+def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.ndarray,
+            zd_end: np.ndarray, u_end: float, dt: float) -> np.ndarray:
+    """Each row's z once the mass has come to rest after its run, the table held still;
+    its hysteretic states in S0 (updated in place) follow the motion."""
+    held = PPoly(np.array([[u_end]]), np.array([0.0, SETTLE]))
+    z_rest = np.empty_like(z_end)
+    for r in range(V.shape[0]):
+        b = simulate_batch(h.model, V[r:r + 1], held, duration=SETTLE, dt=dt, t0=0.0,
+                           s0=S0[r:r + 1], z0=float(z_end[r]), zd0=float(zd_end[r]))
+        for j, (a, bb) in hysteretic:
+            S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, a, bb)[0]
+        z_rest[r] = b.z[0, -1]
+    return z_rest
+
+
+def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray, a: float, b: float,
+                     steps: int = 200) -> np.ndarray:
+    """Bouc–Wen r after the mass moved straight from z_from to z_to (rows), e.g. settling
+    between runs: dr/dz = 1 − a sgn(dz) r − b |r|, by RK4 in z."""
+    r = np.array(r0, float)
+    h = (np.asarray(z_to, float) - np.asarray(z_from, float)) / steps
+    sd = np.sign(h)
+
+    def f(r):
+        return 1.0 - a * sd * r - b * np.abs(r)
+
+    for _ in range(steps):
+        k1 = f(r)
+        k2 = f(r + 0.5 * h * k1)
+        k3 = f(r + 0.5 * h * k2)
+        r = r + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + f(r + h * k3))
+    return r
+
+
+def hysteresis_after(r0: np.ndarray, zd: np.ndarray, dt: float, a: float, b: float
+                     ) -> np.ndarray:
+    """Bouc–Wen r at the end of a run, r' = ż − a|ż|r − b ż|r| along the sampled ż (R, n).
+
+    r does not relax at rest, so a run starts with the state the last one left.
+    """
+    return np.array([state_after(BOUC_WEN, (a, b), row, dt, r) for r, row in zip(r0, zd)])
 
 
 def fluid_temperature_after(theta0: np.ndarray, zd: np.ndarray, dt: float, heating: float,
@@ -145,20 +206,12 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     lo = np.array([b[0] for b in bounds]) / scales
     hi = np.array([b[1] for b in bounds]) / scales
     start = np.clip(start, lo, hi)
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
-
-    def both(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = theta.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = _residual_and_jacobian(h, runs[:last], names, theta, scales, use)
-        return cache[key]
-
-    sol = least_squares(lambda th: both(th)[0], start, jac=lambda th: both(th)[1],
+    evaluator = _Evaluator(h, runs[:last], names, scales, use)
+    sol = least_squares(evaluator.residual, start, jac=evaluator.jacobian,
                         bounds=(lo, hi), method="trf", max_nfev=max_nfev)
     values = sol.x * scales
     fitted = h.with_values(dict(zip(names, values.tolist())))
-    r, J = both(sol.x)
+    r, J = evaluator.residual(sol.x), evaluator.jacobian(sol.x)
     per_run = _split(r, [runs[k].t.size for k in use])
     cov = covariance(r, J, per_run) * np.outer(scales, scales)
     # a direction the data do not determine can come out of pinv slightly negative
@@ -170,18 +223,68 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     return Fit(fitted, names, values, std, corr, tuple(per_run), J, scales, int(sol.nfev))
 
 
-def _residual_and_jacobian(h, runs, names, theta, scales, use):
-    steps = FD_STEP * np.maximum(np.abs(theta), 1.0)
-    rows = np.tile(theta, (len(names) + 1, 1))
-    rows[1:] += np.diag(steps)
-    with np.errstate(over="ignore", invalid="ignore"):
-        pred = predict(h, runs, names, rows * scales)
-        res = [(pred[k][0] - runs[k].x) / runs[k].sigma_x for k in use]
-        jac = [((pred[k][1:] - pred[k][0]) / runs[k].sigma_x / steps[:, None]).T for k in use]
-    # a trial that makes the model unstable (damping driven negative) must look bad, not
-    # stop the search
-    return (np.nan_to_num(np.concatenate(res), nan=UNSTABLE, posinf=UNSTABLE, neginf=-UNSTABLE),
-            np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0))
+class _Evaluator:
+    """Residual and finite-difference Jacobian of the scaled parameters θ, computed apart.
+
+    The trust-region solver evaluates the residual at every trial point but the
+    Jacobian only where a step is accepted, so a rejected trial should cost one
+    simulated row, not n + 1. Rows are integrated in parallel, one per thread, so a
+    trial also simulates the first few perturbed rows on threads that would otherwise
+    idle (n mod threads of them): an accepted step then costs no more parallel rounds
+    than one n + 1 batch. Each row of a batch is integrated on its own, so residual and
+    Jacobian are bit for bit those of the single n + 1 batch, and the solver takes the
+    same path.
+    """
+
+    def __init__(self, h, runs, names, scales, use):
+        self.h, self.runs, self.names, self.scales, self.use = h, runs, names, scales, use
+        self.ahead = len(names) % max(numba.get_num_threads(), 1)
+        if any(t.kind == "thermal_damper" for t in h.model.terms):
+            # the fluid temperature a run leaves is a matrix product over the batch's
+            # rows, whose last bits depend on how many rows there are: keep the batch
+            self.ahead = len(names)
+        self._rows: dict[bytes, tuple[list[np.ndarray], np.ndarray]] = {}  # θ → (x, residual)
+        self._jac: tuple[bytes, np.ndarray] | None = None
+
+    def _steps(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Finite-difference steps and the perturbed rows, exactly as one n + 1 batch."""
+        steps = FD_STEP * np.maximum(np.abs(theta), 1.0)
+        rows = np.tile(theta, (len(self.names) + 1, 1))
+        rows[1:] += np.diag(steps)
+        return steps, rows[1:]
+
+    def _at(self, theta: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """Predictions at θ and at its first `ahead` perturbations; residual at θ."""
+        key = theta.tobytes()
+        if key not in self._rows:
+            rows = np.vstack([theta[None, :], self._steps(theta)[1][: self.ahead]])
+            with np.errstate(over="ignore", invalid="ignore"):
+                pred = predict(self.h, self.runs, self.names, rows * self.scales)
+                res = [(pred[k][0] - self.runs[k].x) / self.runs[k].sigma_x for k in self.use]
+            # a trial that makes the model unstable (damping driven negative) must look
+            # bad, not stop the search
+            r = np.nan_to_num(np.concatenate(res), nan=UNSTABLE, posinf=UNSTABLE,
+                              neginf=-UNSTABLE)
+            if len(self._rows) >= 4:
+                self._rows.pop(next(iter(self._rows)))
+            self._rows[key] = (pred, r)
+        return self._rows[key]
+
+    def residual(self, theta: np.ndarray) -> np.ndarray:
+        return self._at(theta)[1]
+
+    def jacobian(self, theta: np.ndarray, *_) -> np.ndarray:
+        key = theta.tobytes()
+        if self._jac is None or self._jac[0] != key:
+            ahead = self._at(theta)[0]
+            steps, rows = self._steps(theta)
+            with np.errstate(over="ignore", invalid="ignore"):
+                rest = (predict(self.h, self.runs, self.names, rows[self.ahead:] * self.scales)
+                        if self.ahead < len(self.names) else [p[:0] for p in ahead])
+                jac = [((np.vstack([ahead[k][1:], rest[k]]) - ahead[k][0])
+                        / self.runs[k].sigma_x / steps[:, None]).T for k in self.use]
+            self._jac = (key, np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0))
+        return self._jac[1]
 
 
 def _split(r: np.ndarray, sizes: Sequence[int]) -> list[np.ndarray]:

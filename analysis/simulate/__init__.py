@@ -125,12 +125,14 @@ class BatchResponse:
 def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
                    duration: float | None = None, dt: float = DEFAULT_DT,
                    substeps: int = DEFAULT_SUBSTEPS, t0: float | None = None,
-                   s0: ArrayLike | None = None, z0: float = 0.0) -> BatchResponse:
+                   s0: ArrayLike | None = None, z0: float = 0.0, zd0: float = 0.0
+                   ) -> BatchResponse:
     """Simulate N parameter vectors (rows laid out as `model.vector()`) in parallel.
 
     s0: initial internal states, (J,) for every row or (N, J) one per row.
-    z0: initial relative displacement (m), at rest: a mass the dead band let settle
-    off centre starts the next run there.
+    z0: initial relative displacement (m): a mass the dead band let settle off
+    centre starts the next run there. zd0: initial relative velocity (m/s): a
+    mass still creeping when the run starts (a constant force beyond breakaway).
     """
     _check_step(dt, substeps)
     P = np.ascontiguousarray(np.atleast_2d(np.asarray(vectors, float)))
@@ -141,7 +143,7 @@ def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
     kinds, gated = model.structure()
     z, zd, xdd = (np.empty((P.shape[0], n)) for _ in range(3))
     simulate_many(kinds, gated, P, np.ascontiguousarray(motion.x, float),
-                  np.ascontiguousarray(motion.c, float), start, dt, n, substeps, z0, 0.0,
+                  np.ascontiguousarray(motion.c, float), start, dt, n, substeps, z0, zd0,
                   _initial_states(s0, P.shape[0], len(model.terms)), z, zd, xdd)
     t = start + dt * np.arange(n)
     return BatchResponse(t=t, u=_table(motion, t)[0], z=z, zd=zd, xdd=xdd)

@@ -241,6 +241,28 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                 nev = 0
                 while t_end - t > 1e-12 * h:
                     hrem = t_end - t
+                    # a dead-band mode the state contradicts (|z| < δ yet "outside"): an
+                    # exit missed because the entry left z exactly on the edge, where the
+                    # exit's event function is not armed (g = 0). Where the spring's jump
+                    # at the edge pushes back harder than the other forces push out, the
+                    # mass slides along the edge (a Filippov sliding mode); re-deriving the
+                    # mode each step keeps it there instead of leaving the springs on
+                    # inside the band.
+                    if delta > 0.0 and outside and abs(y[0]) < delta:
+                        outside = False
+                    elif delta > 0.0 and not outside and abs(y[0]) > delta:
+                        outside = True
+                    # the same for static friction: a mass held while the force it needs
+                    # already exceeds breakaway lets go now. The breakaway event can be
+                    # lost when it falls microseconds after a break of the table's
+                    # polynomial (a ramp's start); measured: the mass then rode the
+                    # table through a whole ramp with 49 kN of "static friction".
+                    if stuck and friction:
+                        ua = base_motion(breaks, coefs, t)[2]
+                        freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
+                        if abs(freq) > fbreak:
+                            stuck = False
+                            szd = -_sign(freq)
                     # signs start when the motion does: a state at rest has no sign yet
                     if sz == 0.0 and y[0] != 0.0:
                         sz = _sign(y[0])
@@ -342,6 +364,12 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                             stuck = True
                             y[1] = 0.0
             t = t0 + k * dt  # snap to the output grid: no drift from summing h
+        if stuck and friction:  # as at a step's start: never record a held mass past breakaway
+            ua = base_motion(breaks, coefs, t)[2]
+            freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
+            if abs(freq) > fbreak:
+                stuck = False
+                szd = -_sign(freq)
         # record the sample at t
         xdd = rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch)
         out_z[k] = y[0]
