@@ -1,4 +1,4 @@
-"""Shared fixtures: the report's model and profiles; a check that nothing leaks."""
+"""Shared fixtures: the report's model and profiles; the simulated rig; a check that nothing leaks."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ from collections.abc import Iterator
 import pytest
 
 from analysis.model.report_constants import report_model
+from rig.config import load_config
 from rig.profile import load_profile
+from sim.rig_sim import SimRig
 
 
 @pytest.fixture(scope="session")
@@ -20,6 +22,13 @@ def average_model():
 @pytest.fixture(scope="session")
 def run_a():
     return load_profile("A")
+
+
+@pytest.fixture
+def sim() -> Iterator[SimRig]:
+    """The simulated rig (actuators, table, isolator, sensors) on the default config."""
+    with SimRig(load_config()) as rig:
+        yield rig
 
 
 @pytest.fixture

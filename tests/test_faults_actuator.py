@@ -10,7 +10,6 @@ allowance), and a feedback delivered 0.35 s late is still judged correctly.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -43,11 +42,6 @@ from tests.test_run_limits import hardware, profile_file
 
 pytestmark = pytest.mark.usefixtures("no_leaks")
 
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 FEEDBACK_PERIOD_S = 0.01  # 100 Hz (data/rig.toml)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +23,6 @@ import pytest
 
 from rig import can_messages as cm
 from rig.can_messages import Fault, NodeState
-from rig.config import load_config
 from rig.live import LiveStatus, RunControl
 from rig.profile import load_profile
 from rig.runfile import RunFile, open_run
@@ -51,12 +50,6 @@ def measured(test: str, **figures: float) -> None:
     if log:
         with open(log, "a", encoding="utf-8") as f:
             f.write(line + "\n")
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 class At:

@@ -13,7 +13,6 @@ import os
 import random
 import signal
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -39,12 +38,6 @@ FUZZ = settings(max_examples=40, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,
                                        HealthCheck.too_slow])
 RIG_TOML = data_file("rig.toml").read_text(encoding="utf-8")
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 def one_line_error(capsys: pytest.CaptureFixture, prog: str, path: Path, *words: str) -> str:

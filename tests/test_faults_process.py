@@ -13,14 +13,12 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import h5py
 import pytest
 
 from rig.can_messages import Fault, NodeState
-from rig.config import load_config
 from rig.paths import data_file
 from rig.runfile import open_run, read_status
 from sim.rig_sim import SimRig
@@ -31,12 +29,6 @@ pytestmark = pytest.mark.slow
 
 RIG = [sys.executable, "-m", "rig.cli"]
 ACTUATOR_HOLD_BOUND_S = 0.1 + 0.1  # the setpoints' lead, then the actuators' WATCHDOG_S
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 def bench_config(sim: SimRig, path: Path) -> Path:

@@ -8,14 +8,13 @@ into the safe state within the stated bound.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from rig.config import load_config
 from rig.serial_frame import FrameDecoder
 from sim.pty_sensor import SerialFaults
 from sim.rig_sim import SimRig
@@ -31,10 +30,13 @@ from tests.test_faults_can import (
 pytestmark = pytest.mark.usefixtures("no_leaks")
 
 
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
+def from_next_frame(sim: SimRig, fault: str) -> Callable[[], None]:
+    """An action that sets a SerialFaults frame count (`fault`) to the frames sent so far."""
+    def act() -> None:
+        sent = sim.mass_sensor.stats.frames_sent
+        sim.mass_sensor.faults = replace(sim.mass_sensor.faults, **{fault: sent})
+    return act
+
 
 PORT_LOST_BOUND_S = 0.05 + 0.05  # a receiver's read timeout, then one pass and the send
 
@@ -66,11 +68,7 @@ def test_garbage_bit_flips_and_cut_frames_are_rejected_counted_and_marked(
 
 def test_the_port_closing_mid_run_aborts_into_the_safe_state(sim: SimRig,
                                                             tmp_path: Path) -> None:
-    def unplug() -> None:
-        sent = sim.mass_sensor.stats.frames_sent
-        sim.mass_sensor.faults = replace(sim.mass_sensor.faults, close_after_frames=sent)
-
-    out = run(sim, tmp_path, At(0.3, unplug))
+    out = run(sim, tmp_path, At(0.3, from_next_frame(sim, "close_after_frames")))
     assert_aborted(out, "serial port (mass sensor) lost")
     measured("serial_closed", safe_state_s=out.safe_state_after(sim),
              file_closed_s=out.closed_after)
@@ -79,11 +77,7 @@ def test_the_port_closing_mid_run_aborts_into_the_safe_state(sim: SimRig,
 
 def test_a_sensor_that_stops_sending_aborts_within_the_liveness_bound(
         sim: SimRig, tmp_path: Path) -> None:
-    def silence() -> None:
-        sent = sim.mass_sensor.stats.frames_sent
-        sim.mass_sensor.faults = replace(sim.mass_sensor.faults, stop_after_frames=sent)
-
-    out = run(sim, tmp_path, At(0.3, silence))
+    out = run(sim, tmp_path, At(0.3, from_next_frame(sim, "stop_after_frames")))
     assert_aborted(out, "mass sensor silent")
     measured("serial_silent", safe_state_s=out.safe_state_after(sim),
              file_closed_s=out.closed_after)

@@ -22,7 +22,6 @@ import pytest
 
 from rig.can_messages import NodeState
 from rig.cli import main
-from rig.config import load_config
 from rig.errors import DataError
 from rig.live import RunControl
 from rig.profile import load_profile
@@ -34,12 +33,6 @@ from tests.test_faults_can import LOAD_MARGIN_S, At, measured
 from tests.test_run_limits import hardware, profile_file
 
 pytestmark = pytest.mark.usefixtures("no_leaks")
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 @contextlib.contextmanager

@@ -9,14 +9,12 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rig.can_messages import NodeState
-from rig.config import load_config
 from rig.live import LiveStatus, RunControl
 from rig.profile import load_profile
 from rig.runfile import open_run
@@ -25,12 +23,6 @@ from sim.rig_sim import SimRig
 from tests.test_run_limits import _wait_for, hardware, profile_file
 
 pytestmark = pytest.mark.usefixtures("no_leaks")
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 def test_emergency_stop_mid_run_aborts_into_the_safe_state(sim: SimRig, tmp_path: Path) -> None:

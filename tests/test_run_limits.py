@@ -8,7 +8,6 @@ frames the bus drops are counted as lost and marked as gaps.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from types import MappingProxyType
@@ -29,12 +28,6 @@ from sim.rig_sim import SimRig
 from sim.socketcand_server import BusFaults
 
 pytestmark = pytest.mark.usefixtures("no_leaks")  # every bus, port and thread closes
-
-
-@pytest.fixture
-def sim() -> Iterator[SimRig]:
-    with SimRig(load_config()) as rig:
-        yield rig
 
 
 def hardware(rig: SimRig) -> RigConfig:

@@ -351,25 +351,37 @@ def _loro_refit(fit: Fit, cand: Fit, free: list[str], name: str, c: Candidate,
     return base_ss, cand_ss
 
 
-_FOLDS: list[tuple[Fit, tuple[RunData, ...], tuple[str, ...], tuple[int, ...], Fit]] = []
+class _Recent:
+    """The last few results of an expensive call, keyed by the identity of its inputs.
+
+    Fits and runs are immutable objects passed around by reference, so identity is
+    the right key: a step's candidates ask for the same fold refits, and each fit's
+    runs are reported several times. Held references keep the ids from being reused.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.items: list[tuple[tuple[object, ...], object]] = []
+
+    def get(self, key: tuple[object, ...], compute):
+        for k, value in self.items:
+            if len(k) == len(key) and all(a is b or (isinstance(a, tuple) and a == b)
+                                          for a, b in zip(k, key)):
+                return value
+        value = compute()
+        self.items.append((key, value))
+        del self.items[:-self.size]
+        return value
+
+
+_FOLDS = _Recent(6)
 
 
 def _fold_refit(fit: Fit, data: Sequence[RunData], free: list[str], others: list[int]) -> Fit:
     """The model without the candidate refitted on the runs `others`, remembered: every
     candidate of a step that reaches the fold-by-fold check needs the same refits."""
-    for f0, d0, free0, others0, fold in _FOLDS:
-        if (f0 is fit and free0 == tuple(free) and others0 == tuple(others)
-                and _same(d0, data)):
-            return fold
-    fold = _refit(fit.hypothesis, data, free, {}, others, max_nfev=15)
-    _FOLDS.append((fit, tuple(data), tuple(free), tuple(others), fold))
-    del _FOLDS[:-6]
-    return fold
-
-
-def _same(a: Sequence[object], b: Sequence[object]) -> bool:
-    """The same objects, in order (runs hold arrays: compared by identity, not value)."""
-    return len(a) == len(b) and all(x is y for x, y in zip(a, b))
+    return _FOLDS.get((fit, *data, tuple(free), tuple(others)),
+                      lambda: _refit(fit.hypothesis, data, free, {}, others, max_nfev=15))
 
 
 def _loro(fit: Fit) -> list[float]:
@@ -405,19 +417,13 @@ def _diagnose(fit: Fit, runs: Sequence[LoopRun]) -> Diagnosis:
     return diagnose(fit.residuals, z, zd, [r.ud for r in runs], runs[0].data.dt)
 
 
-_PREDICTED: list[tuple[Hypothesis, tuple[RunData, ...], list[np.ndarray]]] = []
+_PREDICTED = _Recent(8)
 
 
 def _predicted(h: Hypothesis, runs: Sequence[LoopRun]) -> list[np.ndarray]:
     """predict(h, runs' data), remembered: each fit's runs are reported several times."""
     data = tuple(r.data for r in runs)
-    for h0, d0, pred in _PREDICTED:
-        if h0 is h and _same(d0, data):
-            return pred
-    pred = predict(h, data)
-    _PREDICTED.append((h, data, pred))
-    del _PREDICTED[:-8]
-    return pred
+    return _PREDICTED.get((h, *data), lambda: predict(h, data))
 
 
 def _states(fit: Fit, runs: Sequence[LoopRun]) -> tuple[list[np.ndarray], list[np.ndarray]]:

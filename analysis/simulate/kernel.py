@@ -177,6 +177,17 @@ def event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, 
         g[EV_LEAVE] = p[P_STOP_VELOCITY] - abs(y[1])
 
 
+@njit(cache=True)
+def _slip_direction(kinds, gated, p, breaks, coefs, t, y, sz, outside, scratch):
+    """sgn(ż) a held mass starts slipping with, or 0 while static friction can hold it.
+
+    The force it must transmit beyond breakaway pushes it the other way.
+    """
+    ua = base_motion(breaks, coefs, t)[2]
+    freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
+    return -_sign(freq) if abs(freq) > p[P_BREAKAWAY] else 0.0
+
+
 @njit(cache=True, inline="always")
 def _sign(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
@@ -258,11 +269,11 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                     # polynomial (a ramp's start); measured: the mass then rode the
                     # table through a whole ramp with 49 kN of "static friction".
                     if stuck and friction:
-                        ua = base_motion(breaks, coefs, t)[2]
-                        freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
-                        if abs(freq) > fbreak:
+                        slip = _slip_direction(kinds, gated, p, breaks, coefs, t, y, sz,
+                                               outside, scratch)
+                        if slip != 0.0:
                             stuck = False
-                            szd = -_sign(freq)
+                            szd = slip
                     # signs start when the motion does: a state at rest has no sign yet
                     if sz == 0.0 and y[0] != 0.0:
                         sz = _sign(y[0])
@@ -365,11 +376,10 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                             y[1] = 0.0
             t = t0 + k * dt  # snap to the output grid: no drift from summing h
         if stuck and friction:  # as at a step's start: never record a held mass past breakaway
-            ua = base_motion(breaks, coefs, t)[2]
-            freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
-            if abs(freq) > fbreak:
+            slip = _slip_direction(kinds, gated, p, breaks, coefs, t, y, sz, outside, scratch)
+            if slip != 0.0:
                 stuck = False
-                szd = -_sign(freq)
+                szd = slip
         # record the sample at t
         xdd = rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch)
         out_z[k] = y[0]
