@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -169,7 +170,7 @@ def _each(make: Callable[[float], Callable[[NDArray], Triple]], y: NDArray, sigm
 def _select_butter(y: NDArray, dt: float, sigma: float, fixed: dict) -> dict:
     if "cutoff_hz" not in fixed:  # coarse over the whole band, then fine: Cp is cheap here
         lo, hi = _bounds(len(y), dt)
-        costs = _each(lambda f: _butter(dt, f), y, sigma)
+        costs = _each(lambda f: _butter(dt, f), y, sigma, lambda f: _butter_df(dt, f, len(y)))
         coarse = _search(costs, lo, hi, 1.5)
         fixed["cutoff_hz"] = _search(costs, max(lo, coarse / 1.5), min(hi, coarse * 1.5))
     return {"cutoff_hz": float(fixed["cutoff_hz"]), "order": BUTTER_ORDER}
@@ -254,10 +255,23 @@ def _central(s: NDArray, dt: float) -> Triple:
     return s, v, a
 
 
-def _butter(dt: float, fc: float) -> Callable[[NDArray], Triple]:
+@lru_cache(maxsize=512)
+def _butter_sos(dt: float, fc: float) -> np.ndarray:
+    # the design costs more than filtering a run; the cutoff grid is the same for
+    # every run of one sample rate and length, so each design is made once
     # filtfilt squares the response: put each pass's -3 dB point where |H|² = ½ at fc
     f3 = min(fc / (np.sqrt(2) - 1) ** (1 / (2 * BUTTER_ORDER)), 0.499 / dt)
-    sos = signal.butter(BUTTER_ORDER, f3, fs=1 / dt, output="sos")
+    return signal.butter(BUTTER_ORDER, f3, fs=1 / dt, output="sos")
+
+
+@lru_cache(maxsize=512)
+def _butter_df(dt: float, fc: float, n: int) -> float:
+    """tr S of the zero-phase Butterworth (Cp's degrees of freedom): data-independent."""
+    return n * float(_butter(dt, fc)(_impulse(n))[0][n // 2])
+
+
+def _butter(dt: float, fc: float) -> Callable[[NDArray], Triple]:
+    sos = _butter_sos(dt, fc).copy()  # scipy's filter wants a writable buffer
 
     def run(y: NDArray) -> Triple:
         pad = min(len(y) - 1, int(3 / (fc * dt)))  # the default 27 samples is shorter than the transient

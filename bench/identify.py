@@ -96,7 +96,8 @@ def main() -> None:
     args = parser.parse_args()
     if not args.no_wall:
         wall_time()
-    monte_carlo(args.draws)
+    if args.draws > 0:  # --draws 0: the wall time only
+        monte_carlo(args.draws)
 
 
 assert set(NAMES) <= set(REFINED)

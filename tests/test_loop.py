@@ -89,6 +89,22 @@ def test_effects_at_five_percent_of_the_peak_acceleration_are_named_first(spec, 
     assert not result.unexplained
 
 
+def test_a_force_offset_is_refitted_from_the_constants_the_loop_started_from():
+    """The base fit soaks a 181 N offset into k1, k2 tanh(αz) and the damping (132 σ);
+    refitted from there with the offset added, it stayed in that valley: 167.5 N at
+    16.7 σ. Refitted also from the loop's start model plus the offset, it is named at
+    its size (measured 180.8 N, 1.35 σ on this draw, where the true model fits at
+    1.06 / 1.00 / 1.17 σ on runs A, B, C); small terms may follow (issue 6's ~20 %)."""
+    result = close_loop(report_model("average"), campaign("force_offset=181"))
+    assert result.effects_added[:1] == ["force_offset"]
+    assert result.steps[0].parameter == "F0"
+    assert result.steps[0].value == pytest.approx(181.0, rel=0.03)
+    assert result.diagnosis_before.residual_over_noise > 5.0
+    for run in ("A", "B", "C"):
+        assert result.steps[0].error_after[run]["residual_over_noise"] < 1.5
+    assert result.diagnosis_after.residual_over_noise < 1.2
+
+
 @pytest.mark.parametrize("seed", range(10))
 def test_clean_campaigns_get_nothing_added_over_ten_seeds(seed):
     result = close_loop(report_model("average"), campaign(seed=seed))
@@ -99,8 +115,8 @@ def test_clean_campaigns_get_nothing_added_over_ten_seeds(seed):
 def test_two_effects_at_once_are_both_named():
     result = close_loop(report_model("average"),
                         campaign("coulomb_friction=167", "asymmetric_damping=560"))
-    # both named before anything else; a small third term (preload, 52 N) still follows
-    # on this draw, absorbing what the asymmetric damping's estimate (9 % low) leaves
+    # both named before anything else; a small third term (preload, 52 N) followed on
+    # this draw before the valley check (docs/loop.md) and is still allowed
     assert sorted(result.effects_added[:2]) == ["asymmetric_damping", "coulomb_friction"]
     final = dict(zip(result.final.names, result.final.values))
     assert final["c3"] == pytest.approx(167.0, rel=0.05)

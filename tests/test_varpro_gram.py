@@ -35,3 +35,20 @@ def test_cached_sigma2_equals_full_solve(data, free):
         else:  # a negative coefficient: refused by both
             assert cached == np.inf
     assert compared >= 6  # most points near the report's shapes are admissible
+
+
+@pytest.mark.parametrize("free", [LINEAR, ("k1", "c1", "c2")])
+def test_grid_sigma2_equals_one_by_one(data, free):
+    """The grid's stacked solve gives each point's σ², and ∞ where one point gives ∞."""
+    model, d = data
+    p = model.parameters()
+    points = [{"alpha": p["alpha"] * fa, "beta": p["beta"] * fb, "delta": p["delta"] * fd}
+              for fa in (0.1, 0.5, 1.0, 4.0) for fb in (0.2, 1.0, 5.0) for fd in (0.0, 1.0, 3.0)]
+    points.append({"alpha": p["alpha"], "beta": p["beta"], "delta": 1.0})  # springs never act
+    many = Gram(model, d).sigma2_many(free, points)
+    one = Gram(model, d)
+    single = np.array([one.sigma2(free, v) for v in points])
+    assert np.array_equal(np.isinf(many), np.isinf(single))
+    assert np.isfinite(single).sum() >= 5 and np.isinf(single).sum() >= 1
+    np.testing.assert_allclose(many[np.isfinite(single)], single[np.isfinite(single)],
+                               rtol=1e-9)

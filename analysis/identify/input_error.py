@@ -27,7 +27,8 @@ from dataclasses import replace
 import numpy as np
 
 from analysis.identify.output_error import OutputErrorFit, RunData
-from analysis.simulate import simulate
+from analysis.model.isolator import IsolatorModel
+from analysis.simulate import RunSetup, simulate_runs
 from analysis.table_motion import (
     TableMotion,
     params_ramps,
@@ -77,44 +78,66 @@ def _steps(table: TableMotion) -> np.ndarray:
     return np.array([STEP[1]] + [STEP[0], STEP[0], STEP[1]] * n + [STEP[0]] * (table.lag > 0))
 
 
-def run_share(fit: OutputErrorFit, rows: np.ndarray, run: RunData, table: TableMotion,
-              info_inv: np.ndarray) -> np.ndarray:
-    """This run's input contribution to cov(log θ), (J, J)."""
-    p0, tied = _params(table), tied_ramps(table.ramps)
-    h = _steps(table)
-    noise = table.sigma_lowfreq or table.sigma  # what the few slow parameters average
-    span = run.t[-1] - run.t[0]
-    base = _motion(run.t, table, p0, tied)
-    x0 = simulate(fit.model, base, duration=span, dt=run.dt, t0=run.t[0]).x
-    u0 = base(run.t)
-    Jx, Ju = np.empty((run.t.size, p0.size)), np.empty((run.t.size, p0.size))
-    for j in range(p0.size):
-        p = p0.copy()
-        p[j] += h[j]
-        motion = _motion(run.t, table, p, tied)
-        x = simulate(fit.model, motion, duration=span, dt=run.dt, t0=run.t[0]).x
-        Jx[:, j] = (x[:run.t.size] - x0[:run.t.size]) / run.sigma_x / h[j]
-        Ju[:, j] = (motion(run.t) - u0) / noise / h[j]
-    G = -info_inv @ (fit.jacobian[rows].T @ Jx)
-    return G @ np.linalg.pinv(Ju.T @ Ju) @ G.T
+def input_sensitivities(model: IsolatorModel, runs: Sequence[RunData],
+                        tables: Sequence[TableMotion]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per run (J_x, C_p): ∂(x_sim/σ_x)/∂p at `model`, and the input fit's covariance.
+
+    J_x is a first-order quantity: a fit a few standard errors away (a run
+    refitted alone from the joint fit) may use the joint model's and save the
+    run's 3·ramps + 2 simulations. Every run's perturbed motions are simulated
+    in one parallel batch.
+    """
+    setups, cols = [], []
+    for run, table in zip(runs, tables):
+        p0, tied = _params(table), tied_ramps(table.ramps)
+        h = _steps(table)
+        motions = [_motion(run.t, table, p0, tied)]
+        for j in range(p0.size):
+            p = p0.copy()
+            p[j] += h[j]
+            motions.append(_motion(run.t, table, p, tied))
+        setups += [RunSetup(m, run.t[-1] - run.t[0], run.dt, run.t[0]) for m in motions]
+        cols.append((motions, h, table.sigma_lowfreq or table.sigma))
+    row = model.vector()
+    xs = [b.z[0] + b.u for b in simulate_runs(model, setups, [row] * len(setups))]
+    out, k = [], 0
+    for run, (motions, h, noise) in zip(runs, cols):
+        n = run.t.size
+        x0, u0 = xs[k][:n], motions[0](run.t)
+        Jx, Ju = np.empty((n, h.size)), np.empty((n, h.size))
+        for j in range(h.size):
+            Jx[:, j] = (xs[k + 1 + j][:n] - x0) / run.sigma_x / h[j]
+            # noise: what the few slow parameters average (white σ of u's low frequencies)
+            Ju[:, j] = (motions[1 + j](run.t) - u0) / noise / h[j]
+        out.append((Jx, np.linalg.pinv(Ju.T @ Ju)))
+        k += 1 + h.size
+    return out
 
 
 def with_input_uncertainty(fit: OutputErrorFit, runs: Sequence[RunData],
-                           tables: Sequence[TableMotion]) -> OutputErrorFit:
+                           tables: Sequence[TableMotion],
+                           sensitivities: Sequence[tuple[np.ndarray, np.ndarray]] | None = None
+                           ) -> OutputErrorFit:
     """`fit` with the input estimate's share added to its covariance and std.
 
     Only when every run's input is a step-pulse fit (a spline has no few
     parameters to propagate); otherwise `fit` is returned unchanged.
+    `sensitivities`: each run's `input_sensitivities` when already known; those
+    used are kept in the result's `input_sensitivity`.
     """
     if fit.jacobian is None or not all(t.ramps for t in tables):
         return fit
+    if sensitivities is None:
+        sensitivities = input_sensitivities(fit.model, runs, tables)
     J = fit.jacobian
     info_inv = np.linalg.pinv(J.T @ J)
     cov_log = fit.covariance / np.outer(fit.values, fit.values)
     start = 0
-    for run, table in zip(runs, tables):
+    for run, (Jx, Cp) in zip(runs, sensitivities):
         rows = slice(start, start + run.t.size)
-        cov_log = cov_log + run_share(fit, rows, run, table, info_inv)
+        G = -info_inv @ (J[rows].T @ Jx)  # how the constants follow an input error
+        cov_log = cov_log + G @ Cp @ G.T
         start += run.t.size
     cov = cov_log * np.outer(fit.values, fit.values)
-    return replace(fit, covariance=cov, std=np.sqrt(np.diag(cov)), input_covariance=True)
+    return replace(fit, covariance=cov, std=np.sqrt(np.diag(cov)), input_covariance=True,
+                   input_sensitivity=tuple(sensitivities))

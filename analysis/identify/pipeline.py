@@ -36,6 +36,7 @@ from analysis.identify.output_error import (
     RunData,
     determined,
     initial_offset,
+    one_step,
     refine,
 )
 from analysis.identify.regressors import regressor_matrix
@@ -166,15 +167,18 @@ def identify(runs: Sequence[MeasuredRun], refine_output_error: bool = True,
     errors = {p.run.name: run_error(model, p) for p in prepared}
     if per_run and refine_output_error and len(prepared) > 1:
         start = 0
-        for p in prepared:
+        for k, p in enumerate(prepared):
             rows = slice(start, start + p.oe.t.size)
             start += p.oe.t.size
             # the joint optimum's residual and Jacobian rows of this run are where its own
             # fit starts: no need to simulate them again
             at_start = (None if joint.jacobian is None or joint.residual is None else
                         (joint.residual[rows], joint.jacobian[rows]))
+            sensitivity = (joint.input_sensitivity[k:k + 1] if joint.input_sensitivity
+                           else None)
             runs_fit[p.run.name] = _run_alone(p, model0, model, errors[p.run.name], progress,
-                                              free=joint.names, at_start=at_start)
+                                              free=joint.names, at_start=at_start,
+                                              sensitivity=sensitivity)
     return IsolatorFit(model=model, estimate=estimate, appendix_a=appendix_a, projection=proj,
                        joint=joint, held=held, per_run=runs_fit, errors=errors,
                        flagged=flag_runs(runs_fit), prepared=prepared)
@@ -182,7 +186,9 @@ def identify(runs: Sequence[MeasuredRun], refine_output_error: bool = True,
 
 def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, error: RunError,
                progress: Progress, free: Sequence[str] | None = None,
-               at_start: tuple[np.ndarray, np.ndarray] | None = None) -> OutputErrorFit:
+               at_start: tuple[np.ndarray, np.ndarray] | None = None,
+               sensitivity: Sequence[tuple[np.ndarray, np.ndarray]] | None = None
+               ) -> OutputErrorFit:
     """One run's own output-error fit, from the joint estimate if it fits the run.
 
     A run the joint model leaves at more than CONSISTENT × its noise has other
@@ -192,7 +198,8 @@ def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, erro
     if error.residual_over_noise <= CONSISTENT:
         progress(f"run {p.run.name}: output error from the joint estimate")
         # what the joint fit held, one run of it cannot determine either
-        return _refine(joint, [p], progress, free=free, at_start=at_start)
+        return _refine(joint, [p], progress, free=free, at_start=at_start,
+                       sensitivity=sensitivity)
     progress(f"run {p.run.name}: variable projection, output error")
     own = project(model0, _stack([p]), free=LINEAR, grid=PER_RUN_GRID).model
     if any(own.parameters()[n] <= 0 for n in LINEAR):
@@ -203,7 +210,9 @@ def _run_alone(p: PreparedRun, model0: IsolatorModel, joint: IsolatorModel, erro
 
 def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Progress,
             free: Sequence[str] | None = None,
-            at_start: tuple[np.ndarray, np.ndarray] | None = None) -> OutputErrorFit:
+            at_start: tuple[np.ndarray, np.ndarray] | None = None,
+            sensitivity: Sequence[tuple[np.ndarray, np.ndarray]] | None = None
+            ) -> OutputErrorFit:
     """Output error over the constants of REFINED that these runs determine.
 
     Checked twice: at the start (cheap, one Jacobian) and at the optimum, where
@@ -214,10 +223,15 @@ def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Pro
     runs = [p.oe for p in prepared]
     start = _positive_start(start)
     if free is None:
-        free, held = determined(start, runs, REFINED)
+        free, held, at_start = determined(start, runs, REFINED)
+        fit = refine(start, runs, free, at_start=at_start)
     else:  # given (a fit on more data already split them): skip the start's Jacobian
         free, held = tuple(free), tuple(n for n in REFINED if n not in free)
-    fit = refine(start, runs, free, at_start=at_start)
+        # from a nearby optimum one checked Gauss–Newton step is the fit
+        fit = one_step(start, runs, free, at_start) if at_start is not None else None
+        if fit is None:
+            fit = refine(start, runs, free, at_start=at_start)
+            sensitivity = None  # iterated away from the start: its input sensitivity too
     loose = [n for n, v, s in zip(fit.names, fit.values, fit.std) if s > HOLD_LOG_STD * v]
     if loose:
         held = held + tuple(loose)
@@ -226,7 +240,7 @@ def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Pro
                      [n for n in free if n not in loose])
     if held:
         progress(f"  held (not determined by these runs): {', '.join(held)}")
-    return with_input_uncertainty(fit, runs, [p.table for p in prepared])
+    return with_input_uncertainty(fit, runs, [p.table for p in prepared], sensitivity)
 
 
 def _positive_start(model: IsolatorModel) -> IsolatorModel:

@@ -6,13 +6,18 @@ Each step:
 2. score every candidate not yet added by the Lagrange-multiplier test from
    the fitted Jacobian, and shortlist the strongest;
 3. refit each shortlisted candidate with every fitted constant free (output
-   error, all runs), and keep those whose parameter is significant (|t| > 3
-   with the residual's autocorrelation counted), not a look-alike of a fitted
-   constant (|correlation| < 0.99) and that cut the residual by at least 2 %;
+   error, all runs) from several starts — where none reaches the noise, also
+   from the constants the loop was given — and keep those whose parameter is
+   significant (|t| > 3 with the residual's autocorrelation counted), not a
+   look-alike of a fitted constant (|correlation| < 0.99) and that cut the
+   residual by at least 2 %, also over the model without it refitted from the
+   candidate fit's constants (the cut of a lower valley is not the effect's);
 4. validate the best across runs: leave each run out, fit with and without the
    candidate on the others, predict the one left out. A candidate that does not
    predict the held-out runs better is fitting noise and is refused;
-5. add it, and go round again.
+5. add it, and go round again; where the model without the candidate, refitted
+   from its constants, is ≥ 2 % below the current fit, the step is done again
+   from that better fit before anything is named.
 
 When nothing passes but the residual is still well above the noise or not
 white, the loop says "unexplained structure" and where it concentrates
@@ -103,19 +108,25 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
                progress: Callable[[str], None] = lambda m: None) -> LoopResult:
     """Refit `model` on the runs, then add effects from the library while the data ask."""
     data = [r.data for r in runs]
-    h = Hypothesis(model)
+    start = Hypothesis(model)  # kept: each candidate is also refitted from it (_from_start)
     free = [n for n in BASE_FREE if n in model.parameters() and model.parameters()[n] != 0.0]
     progress("loop: refitting the base model")
-    fit = _refit(h, data, free, {})
-    base, steps, refused = fit, [], []
+    fit = _refit(start, data, free, {})
+    base, steps, refused, rebased = fit, [], [], 0
     while len(steps) < max_effects:
         diag = _diagnose(fit, runs)
         if diag.residual_over_noise <= NOISE_LEVEL and diag.white:
             break
-        step, why = _one_step(fit, free, runs, diag, progress)
+        step, why, better = _one_step(fit, free, runs, diag, progress, start)
         refused.extend(why)
         if step is None:
-            break
+            if better is None or rebased == max_effects:
+                break
+            # a better optimum of the model as it is (`_without`): the step again from it
+            progress(f"loop: the model without a new effect refits to "
+                     f"{better.residual_over_noise:.2f} x noise from a candidate's constants")
+            fit, rebased = better, rebased + 1
+            continue
         steps.append(step[0])
         fit = step[1]
         free.append(step[0].parameter)
@@ -133,7 +144,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-              progress: Callable[[str], None]):
+              progress: Callable[[str], None], start: Hypothesis | None = None):
     data = [r.data for r in runs]
     h = fit.hypothesis
     tried = set(free)
@@ -151,23 +162,46 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     by_ee = sorted((n for n in ee if ee[n] > 0), key=lambda n: -ee[n])[:SHORTLIST - 1]
     shortlist = [x for x in scores[:SHORTLIST - 1]]
     shortlist += [x for x in scores if x[1].name in by_ee and x not in shortlist]
-    refused, passing = [], []
+    refused, refits = [], []
     for s, c, cand_h in shortlist:
         if s.statistic < MIN_SCORE:
             refused.append({"candidate": c.name, "reason": f"score {s.statistic:.1f} < "
                             f"{MIN_SCORE} (χ²₁, 0.1 %)"})
             continue
         progress(f"loop: refitting with {c.name}")
-        starts = [cand_h.with_values({s.name: v}) for v in _starts(cand_h, data, s, c)]
+        sizes = _starts(cand_h, data, s, c)
+        starts = [cand_h.with_values({s.name: v}) for v in sizes]
         starts += _equation_error_start(cand_h, runs, s.name, c)
         fits = [_refit(h0, data, free + [s.name], {s.name: c}) for h0 in starts]
-        cf = min(fits, key=lambda f: f.rss)
+        refits.append((s, c, cand_h, sizes, min(fits, key=lambda f: f.rss)))
+    if refits and all(r[4].residual_over_noise > NOISE_LEVEL for r in refits):
+        # no candidate reached the noise from the fitted constants: perhaps they have
+        # soaked up the effect (_from_start); where one did, no other start can do
+        # better than the noise, and the extra refits would cost a third more rounds
+        refits = [(s, c, cand_h, v, _refit_from_start(start, cf, cand_h, free, s, c, v, data,
+                                                      progress))
+                  for s, c, cand_h, v, cf in refits]
+    passing = []
+    for s, c, cand_h, _, cf in refits:
         reason = _significance(fit, cf, s.name)
         if reason:
             refused.append({"candidate": c.name, "reason": reason})
         else:
             passing.append((cf.rss, s, c, cf))
     for _, s, c, cf in sorted(passing, key=lambda p: p[0]):
+        # checked in the order of validation: one refit per step where the best passes
+        without = _without(cf, free, s.name, data)
+        if without.rss < (1.0 - MIN_DROP) * fit.rss:
+            # the model as it is has a better optimum: every candidate must be judged
+            # against that, so the step is done again from it before anything is named
+            refused.append({"candidate": c.name, "reason": "the model without it refits "
+                            f"{100 * (1 - without.rss / fit.rss):.0f} % lower from its "
+                            "constants: the step is done again from there"})
+            return None, refused, without
+        if without.rss < fit.rss and (reason := _significance(
+                without, cf, s.name, " over the model without it, refitted from its constants")):
+            refused.append({"candidate": c.name, "reason": reason})
+            continue
         progress(f"loop: validating {c.name} on held-out runs")
         held = _held_out(fit, cf, free, s.name, c, runs)
         if held["accepted"]:
@@ -177,10 +211,25 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
                         error_before=run_errors(fit, runs), error_after=run_errors(cf, runs),
                         residual_before=np.concatenate(fit.residuals),
                         signature_before=_signature(fit, runs, c))
-            return (step, cf), refused
+            return (step, cf), refused, None
         refused.append({"candidate": c.name, "reason": "does not predict held-out runs better: "
                         + held["text"]})
-    return None, refused
+    return None, refused, None
+
+
+def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
+    """The model without the candidate, refitted from the candidate fit's constants.
+
+    The cost is many-valleyed (where the mass rests in the dead band moves in steps),
+    and a candidate refitted from several starts can cut the residual by reaching a
+    lower valley of the model it extends rather than by what it adds: after a 181 N
+    offset was named at 1.35 σ, a cubic spring cut the residual 12 %, and the model
+    without it, refitted from the cubic fit's constants, reached 1.05 σ. The cut that
+    counts is the one over the better of the two fits. A few iterations, like the
+    fold refits: an unconverged refit only makes the check more lenient.
+    """
+    h = cf.hypothesis.with_values({name: 0.0})
+    return _refit(h, data, free, {}, max_nfev=15)
 
 
 SCAN = (0.3, 1.0, 3.0, 10.0, 30.0)  # multiples of the typical size tried as starts
@@ -270,6 +319,42 @@ def _equation_error_start(h: Hypothesis, runs: Sequence[LoopRun], name: str, c: 
     return [h.with_values(values)]
 
 
+def _refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: list[str],
+                      s: Score, c: Candidate, sizes: list[float], data,
+                      progress: Callable[[str], None]) -> Fit:
+    """The best of the candidate's refit `cf` and refits from the loop's start model."""
+    lo, hi = c.bounds(h.model)
+    values = [float(np.clip(s.predicted_value, lo, hi))]
+    values += [v for v in sizes if all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v)
+                                       for o in values)]
+    starts = _from_start(start, h, free, s.name, values)
+    if starts:
+        progress(f"loop: refitting with {c.name} from the starting constants")
+    return min([cf] + [_refit(h0, data, free + [s.name], {s.name: c}) for h0 in starts],
+               key=lambda f: f.rss)
+
+
+def _from_start(start: Hypothesis | None, h: Hypothesis, free: Sequence[str], name: str,
+                values: Sequence[float]) -> list[Hypothesis]:
+    """A start from the constants the loop was given, with the candidate at `value`.
+
+    The base refit lets its constants soak up what the missing effect does (a force
+    offset moves k1, k2 tanh(αz) and the damping to shift where the mass rests), and a
+    refit from there with the effect added can stay in that valley: 16.7 σ for a
+    181 N offset where the truth fits at 1.01 σ. The constants the loop started from
+    never absorbed it. Effects added on earlier steps keep their fitted values.
+
+    The candidate starts at the score's estimate and at the scan's best size (when they
+    differ by more than a factor of two): along the offset the cost is rugged (where
+    the mass rests against the dead band's edge moves in steps); on seed 1 a start at
+    137.44 N ends at 1.19 σ, at 137.4386 N at 8.16 σ, at 30 N 1.35 σ, at 100 N 2.14 σ.
+    """
+    if start is None:
+        return []
+    base = {n: start.value(n) for n in free if n in BASE_FREE}
+    return [h.with_values({**base, name: v}) for v in values]
+
+
 def _refit(h: Hypothesis, data, names, candidates: dict[str, Candidate],
            fit_runs=None, max_nfev: int = 40) -> Fit:
     scales, bounds = [], []
@@ -285,7 +370,7 @@ def _refit(h: Hypothesis, data, names, candidates: dict[str, Candidate],
     return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
 
 
-def _significance(before: Fit, after: Fit, name: str) -> str:
+def _significance(before: Fit, after: Fit, name: str, against: str = "") -> str:
     value, std = after.param(name)
     t = abs(value) / std if std > 0 else np.inf
     drop = (before.rss - after.rss) / before.rss
@@ -295,7 +380,7 @@ def _significance(before: Fit, after: Fit, name: str) -> str:
     if t < MIN_T:
         return f"not significant: |t| = {t:.1f} < {MIN_T}"
     if drop < MIN_DROP:
-        return f"cuts the residual by only {100 * drop:.1f} % (< {100 * MIN_DROP:.0f} %)"
+        return f"cuts the residual by only {100 * drop:.1f} % (< {100 * MIN_DROP:.0f} %){against}"
     if worst >= 0 and others[worst] > MAX_CORRELATION:
         other = [n for n in after.names if n != name][worst]
         return f"a look-alike of {other}: correlation {others[worst]:.3f}"

@@ -7,6 +7,7 @@ motion (what identification needs).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,7 @@ from scipy.interpolate import CubicSpline, PPoly
 
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
-from analysis.simulate.kernel import simulate_many, simulate_one
+from analysis.simulate.kernel import simulate_jobs, simulate_one
 
 DEFAULT_DT = 1e-3  # s, output sample interval (the sensors' 1 kHz)
 DEFAULT_SUBSTEPS = 1  # RK4 steps per output sample: at 1 ms, 0.3 µm error on run A
@@ -122,6 +123,18 @@ class BatchResponse:
     xdd: np.ndarray
 
 
+@dataclass(frozen=True)
+class RunSetup:
+    """One run of a batch: the table motion that drives it and where it starts (SI)."""
+
+    motion: PPoly
+    duration: float | None = None  # s; None: to the motion's last break
+    dt: float = DEFAULT_DT
+    t0: float | None = None  # s; None: the motion's first break
+    z0: float = 0.0  # relative displacement at t0, m
+    zd0: float = 0.0  # relative velocity at t0, m/s
+
+
 def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
                    duration: float | None = None, dt: float = DEFAULT_DT,
                    substeps: int = DEFAULT_SUBSTEPS, t0: float | None = None,
@@ -134,16 +147,57 @@ def simulate_batch(model: IsolatorModel, vectors: ArrayLike, motion: PPoly,
     centre starts the next run there. zd0: initial relative velocity (m/s): a
     mass still creeping when the run starts (a constant force beyond breakaway).
     """
-    _check_step(dt, substeps)
-    P = np.ascontiguousarray(np.atleast_2d(np.asarray(vectors, float)))
-    if P.shape[1] != model.vector().size:
-        raise ValueError(f"parameter rows have {P.shape[1]} values, model needs "
-                         f"{model.vector().size}")
-    start, n = _grid(motion, duration, dt, t0)
+    return simulate_runs(model, [RunSetup(motion, duration, dt, t0, z0, zd0)], [vectors],
+                         substeps, None if s0 is None else [s0])[0]
+
+
+def simulate_runs(model: IsolatorModel, setups: Sequence[RunSetup],
+                  vectors: Sequence[ArrayLike], substeps: int = DEFAULT_SUBSTEPS,
+                  s0: Sequence[ArrayLike | None] | None = None) -> list[BatchResponse]:
+    """`simulate_batch` of several runs at once: vectors[k] (N_k rows) on setups[k].
+
+    All rows of all runs share the cores in one parallel call (rows interleaved
+    across runs, so that each core gets a share of every run's work).
+    s0[k]: run k's initial internal states, as `simulate_batch`'s s0.
+    """
+    if not setups:
+        return []
+    for s in setups:
+        _check_step(s.dt, substeps)
+    nv = model.vector().size
+    Ps = [np.atleast_2d(np.asarray(v, float)) for v in vectors]
+    for P in Ps:
+        if P.shape[1] != nv:
+            raise ValueError(f"parameter rows have {P.shape[1]} values, model needs {nv}")
+    grids = [_grid(s.motion, s.duration, s.dt, s.t0) for s in setups]
+    nt = len(model.terms)
+    states = [_initial_states(None if s0 is None else s0[k], P.shape[0], nt)
+              for k, P in enumerate(Ps)]
+    # job order (row i of every run, then row i + 1, …): static chunks stay balanced
+    jobs = sorted(((i, k) for k, P in enumerate(Ps) for i in range(P.shape[0])))
+    job_run = np.array([k for _, k in jobs], np.int64)
+    P_all = np.ascontiguousarray([Ps[k][i] for i, k in jobs]).reshape(len(jobs), nv)
+    S_all = np.ascontiguousarray([states[k][i] for i, k in jobs]).reshape(len(jobs), nt)
+    n_breaks = np.array([s.motion.x.size for s in setups], np.int64)
+    degree = max(s.motion.c.shape[0] for s in setups)
+    breaks = np.zeros((len(setups), n_breaks.max()))
+    coefs = np.zeros((len(setups), degree, n_breaks.max() - 1))
+    for m, s in enumerate(setups):
+        breaks[m, :n_breaks[m]] = s.motion.x
+        coefs[m, degree - s.motion.c.shape[0]:, :n_breaks[m] - 1] = s.motion.c
+    n_out = np.array([n for _, n in grids], np.int64)
+    z, zd, xdd = (np.empty((len(jobs), n_out.max())) for _ in range(3))
     kinds, gated = model.structure()
-    z, zd, xdd = (np.empty((P.shape[0], n)) for _ in range(3))
-    simulate_many(kinds, gated, P, np.ascontiguousarray(motion.x, float),
-                  np.ascontiguousarray(motion.c, float), start, dt, n, substeps, z0, zd0,
-                  _initial_states(s0, P.shape[0], len(model.terms)), z, zd, xdd)
-    t = start + dt * np.arange(n)
-    return BatchResponse(t=t, u=_table(motion, t)[0], z=z, zd=zd, xdd=xdd)
+    simulate_jobs(kinds, gated, P_all, job_run, breaks, n_breaks, coefs,
+                  np.array([g[0] for g in grids]), np.array([s.dt for s in setups]), n_out,
+                  substeps, np.array([s.z0 for s in setups], float),
+                  np.array([s.zd0 for s in setups], float), S_all, z, zd, xdd)
+    out = []
+    for k, (s, (start, n)) in enumerate(zip(setups, grids)):
+        rows = [j for j, (_, kk) in enumerate(jobs) if kk == k]
+        t = start + s.dt * np.arange(n)
+        # u only, held outside the breaks as in `_table` (its derivatives are not needed)
+        u = s.motion(np.clip(t, s.motion.x[0], s.motion.x[-1]))
+        out.append(BatchResponse(t=t, u=u, z=z[rows, :n],
+                                 zd=zd[rows, :n], xdd=xdd[rows, :n]))
+    return out

@@ -125,10 +125,15 @@ def rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scrat
 
 @njit(cache=True)
 def rk4_step(kinds, gated, p, breaks, coefs, t, y, h, stuck, outside, sz, szd,
-             out, k1, k2, k3, k4, tmp, scratch):
-    """One classical RK4 step of length h with the modes frozen; result in `out`."""
+             out, k1, k2, k3, k4, tmp, scratch, k1_ready=False):
+    """One classical RK4 step of length h with the modes frozen; result in `out`.
+
+    k1_ready: k1 already holds dy/dt at (t, y) for these modes (a sample's recorded
+    rate, or an earlier trial step from the same point while an event is located).
+    """
     n = y.shape[0]
-    rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, k1, scratch)
+    if not k1_ready:
+        rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, k1, scratch)
     for i in range(n):
         tmp[i] = y[i] + 0.5 * h * k1[i]
     rhs(kinds, gated, p, breaks, coefs, t + 0.5 * h, tmp, stuck, outside, sz, szd, k2, scratch)
@@ -245,6 +250,13 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
 
     h = dt / substeps
     t = t0
+    recorded = False  # dy holds the rate at the last recorded sample (t_rec and modes)
+    t_rec = t0
+    zd_rec = 0.0
+    stuck_rec = False
+    outside_rec = False
+    sz_rec = 0.0
+    szd_rec = 0.0
     for k in range(n_out):
         if k > 0:
             for _ in range(substeps):
@@ -292,8 +304,18 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                                 y[1] = 0.0
                     event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd,
                                  direction, uses_sz, uses_szd, g0, scratch)
+                    # the rate recorded with the sample is this step's first stage when
+                    # nothing has changed since: same time, state and modes
+                    if (recorded and t == t_rec and y[1] == zd_rec and stuck == stuck_rec
+                            and outside == outside_rec and sz == sz_rec and szd == szd_rec):
+                        for i in range(n):
+                            k1[i] = dy[i]
+                    else:
+                        rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, k1,
+                            scratch)
+                    recorded = False
                     rk4_step(kinds, gated, p, breaks, coefs, t, y, hrem, stuck, outside, sz, szd,
-                             y1, k1, k2, k3, k4, tmp, scratch)
+                             y1, k1, k2, k3, k4, tmp, scratch, True)
                     event_values(kinds, gated, p, breaks, coefs, t + hrem, y1, stuck, outside,
                                  sz, szd, direction, uses_sz, uses_szd, g1, scratch)
                     fired = False
@@ -326,7 +348,8 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                             if not (lo < th < hi):
                                 th = 0.5 * (lo + hi)
                             rk4_step(kinds, gated, p, breaks, coefs, t, y, th * hrem, stuck,
-                                     outside, sz, szd, ytry, k1, k2, k3, k4, tmp, scratch)
+                                     outside, sz, szd, ytry, k1, k2, k3, k4, tmp, scratch,
+                                     True)
                             event_values(kinds, gated, p, breaks, coefs, t + th * hrem, ytry,
                                          stuck, outside, sz, szd, direction, uses_sz, uses_szd,
                                          gt, scratch)
@@ -347,7 +370,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                     # step to just past the event, then switch every mode whose event has fired
                     hs = theta_best * hrem
                     rk4_step(kinds, gated, p, breaks, coefs, t, y, hs, stuck, outside, sz, szd,
-                             ytry, k1, k2, k3, k4, tmp, scratch)
+                             ytry, k1, k2, k3, k4, tmp, scratch, True)
                     t = t + hs
                     for i in range(n):
                         y[i] = ytry[i]
@@ -382,6 +405,13 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                 szd = slip
         # record the sample at t
         xdd = rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch)
+        recorded = True
+        t_rec = t
+        zd_rec = y[1]
+        stuck_rec = stuck
+        outside_rec = outside
+        sz_rec = sz
+        szd_rec = szd
         out_z[k] = y[0]
         out_zd[k] = 0.0 if stuck else y[1]
         out_xdd[k] = xdd
@@ -413,3 +443,26 @@ def simulate_many(kinds, gated, P, breaks, coefs, t0, dt, n_out, substeps, z0, z
         st = np.empty(0)
         simulate_one(kinds, gated, P[r], breaks, coefs, t0, dt, n_out, substeps, z0, zd0, S0[r],
                      out_z[r], out_zd[r], out_xdd[r], f, s, st, False)
+
+
+@njit(cache=True, parallel=True)
+def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_out, substeps,
+                  z0, zd0, S0, out_z, out_zd, out_xdd):
+    """simulate_one for each job in parallel: parameter row P[r] on run job_run[r].
+
+    Runs differ in table motion (row m of `breaks` (M, B) and `coefs` (M, deg+1, B−1),
+    the first n_breaks[m] breaks used; a lower degree padded with leading zeros,
+    which Horner's rule carries as exact zeros), start time, step, length and
+    start state. One call spreads every run's rows over the cores, where a
+    batch per run leaves a core idle whenever its row count is odd.
+    """
+    nt = kinds.shape[0]
+    for r in prange(P.shape[0]):
+        m = job_run[r]
+        nb = n_breaks[m]
+        f = np.empty((nt + 1, 0))
+        s = np.empty((nt, 0))
+        st = np.empty(0)
+        simulate_one(kinds, gated, P[r], breaks[m, :nb], coefs[m, :, :nb - 1], t0[m], dt[m],
+                     n_out[m], substeps, z0[m], zd0[m], S0[r], out_z[r], out_zd[r],
+                     out_xdd[r], f, s, st, False)
