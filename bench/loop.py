@@ -79,7 +79,7 @@ def wall_time(repeat: int = 2) -> dict[str, float]:
 def _simulation_work(fn) -> dict[str, int]:
     """Run-simulations (rows x runs) and parallel rounds the loop's predictions take."""
     refit_module = sys.modules["analysis.loop.refit"]
-    batch = refit_module.simulate_batch
+    batch, runs = refit_module.simulate_batch, refit_module.simulate_runs
     cores = max(numba.get_num_threads(), 1)
     work = {"rows": 0, "rounds": 0, "cores": cores}
 
@@ -89,11 +89,17 @@ def _simulation_work(fn) -> dict[str, int]:
         work["rounds"] += -(-rows // cores)
         return batch(model, vectors, *args, **kwargs)
 
-    refit_module.simulate_batch = counted
+    def counted_runs(model, setups, vectors, *args, **kwargs):
+        rows = sum(np.atleast_2d(v).shape[0] for v in vectors)  # one call shares the cores
+        work["rows"] += rows
+        work["rounds"] += -(-rows // cores)
+        return runs(model, setups, vectors, *args, **kwargs)
+
+    refit_module.simulate_batch, refit_module.simulate_runs = counted, counted_runs
     try:
         fn()
     finally:
-        refit_module.simulate_batch = batch
+        refit_module.simulate_batch, refit_module.simulate_runs = batch, runs
     return work
 
 

@@ -31,7 +31,7 @@ from analysis.identify.regressors import state_after
 from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import BOUC_WEN
-from analysis.simulate import simulate_batch
+from analysis.simulate import RunSetup, simulate_batch, simulate_runs
 
 UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
 FD_STEP = 3e-3  # of a parameter's size: above the integrator's noise, below curvature
@@ -113,9 +113,12 @@ def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.
     its hysteretic states in S0 (updated in place) follow the motion."""
     held = PPoly(np.array([[u_end]]), np.array([0.0, SETTLE]))
     z_rest = np.empty_like(z_end)
-    for r in range(V.shape[0]):
-        b = simulate_batch(h.model, V[r:r + 1], held, duration=SETTLE, dt=dt, t0=0.0,
-                           s0=S0[r:r + 1], z0=float(z_end[r]), zd0=float(zd_end[r]))
+    # each row settles from its own state: one run each, all in one parallel call
+    rows = range(V.shape[0])
+    setups = [RunSetup(held, SETTLE, dt, 0.0, float(z_end[r]), float(zd_end[r])) for r in rows]
+    settled = simulate_runs(h.model, setups, [V[r:r + 1] for r in rows],
+                            s0=[S0[r:r + 1] for r in rows])
+    for r, b in zip(rows, settled):
         for j, (a, bb) in hysteretic:
             S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, a, bb)[0]
         z_rest[r] = b.z[0, -1]
