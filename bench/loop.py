@@ -83,16 +83,16 @@ def _simulation_work(fn) -> dict[str, int]:
     cores = max(numba.get_num_threads(), 1)
     work = {"rows": 0, "rounds": 0, "cores": cores}
 
-    def counted(model, vectors, *args, **kwargs):
-        rows = np.atleast_2d(vectors).shape[0]
+    def count(rows: int) -> None:  # one call's rows share the cores
         work["rows"] += rows
         work["rounds"] += -(-rows // cores)
+
+    def counted(model, vectors, *args, **kwargs):
+        count(np.atleast_2d(vectors).shape[0])
         return batch(model, vectors, *args, **kwargs)
 
     def counted_runs(model, setups, vectors, *args, **kwargs):
-        rows = sum(np.atleast_2d(v).shape[0] for v in vectors)  # one call shares the cores
-        work["rows"] += rows
-        work["rounds"] += -(-rows // cores)
+        count(sum(np.atleast_2d(v).shape[0] for v in vectors))
         return runs(model, setups, vectors, *args, **kwargs)
 
     refit_module.simulate_batch, refit_module.simulate_runs = counted, counted_runs

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import PPoly, make_smoothing_spline
@@ -52,6 +53,17 @@ class RunData:
     @property
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
+
+    @cached_property
+    def first_motion(self) -> float:
+        """Time (s) the table motion first leaves its starting level.
+
+        Cached: every simulation of the run asks for its start state, and this
+        evaluates the motion at every sample.
+        """
+        u = self.motion(self.t)
+        moved = np.flatnonzero(np.abs(u - u[0]) > 1e-9)
+        return float(self.t[moved[0]]) if moved.size else float(self.t[-1])
 
 
 INPUT_CUTOFF = 50.0  # Hz: the table's servo-hydraulic motion has no content above this
@@ -180,7 +192,7 @@ def start_state(run: RunData, sensor_gain: float = 0.0, dead_band: float = 0.0
     exactly there (the springs' jump pushes back), and a start a few µm off to
     either side would begin the run in the wrong mode.
     """
-    still = run.t < _first_motion(run)
+    still = run.t < run.first_motion
     k = int(min(START_WINDOW, np.count_nonzero(still)))
     if k < 10:
         return initial_offset(run, sensor_gain), 0.0
@@ -196,13 +208,6 @@ def start_state(run: RunData, sensor_gain: float = 0.0, dead_band: float = 0.0
     if dead_band > 0 and abs(abs(z0) - dead_band) < EDGE_SIGMAS * std_z0:
         z0 = float(np.sign(z0) * dead_band)
     return z0, 0.0
-
-
-def _first_motion(run: RunData) -> float:
-    """Time (s) the estimated table motion first leaves its starting level."""
-    u = run.motion(run.t)
-    moved = np.flatnonzero(np.abs(u - u[0]) > 1e-9)
-    return float(run.t[moved[0]]) if moved.size else float(run.t[-1])
 
 
 def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray,
@@ -357,8 +362,8 @@ def one_step(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str]
 
     A first step whose cost the kept Jacobian does not predict (`LINEAR_SLACK`),
     a step that raises the cost (friction and the dead band make it jump), or no
-    convergence within CHORD_STEPS returns None: the caller then iterates in full. The covariance uses the
-    start's Jacobian, the residual the last step's.
+    convergence within CHORD_STEPS returns None: the caller then iterates in full.
+    The covariance uses the start's Jacobian, the residual the last step's.
     """
     names = tuple(names)
     r, J0 = at_start

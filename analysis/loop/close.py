@@ -235,6 +235,11 @@ def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
 SCAN = (0.3, 1.0, 3.0, 10.0, 30.0)  # multiples of the typical size tried as starts
 
 
+def _distinct(v: float, others: Sequence[float]) -> bool:
+    """True when size v differs from each of `others` by more than a factor of two."""
+    return all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v) for o in others)
+
+
 def _starts(h: Hypothesis, data, s: Score, c: Candidate, keep: int = 1) -> list[float]:
     """Starts for a candidate's refit: the best `keep` of the score's estimate and a scan.
 
@@ -254,8 +259,7 @@ def _starts(h: Hypothesis, data, s: Score, c: Candidate, keep: int = 1) -> list[
     starts: list[float] = []
     for i in np.argsort(cost):
         v = float(trial[i])
-        if np.isfinite(cost[i]) and all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v)
-                                        for o in starts):
+        if np.isfinite(cost[i]) and _distinct(v, starts):
             starts.append(v)
         if len(starts) == keep:
             break
@@ -325,8 +329,7 @@ def _refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: li
     """The best of the candidate's refit `cf` and refits from the loop's start model."""
     lo, hi = c.bounds(h.model)
     values = [float(np.clip(s.predicted_value, lo, hi))]
-    values += [v for v in sizes if all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v)
-                                       for o in values)]
+    values += [v for v in sizes if _distinct(v, values)]
     starts = _from_start(start, h, free, s.name, values)
     if starts:
         progress(f"loop: refitting with {c.name} from the starting constants")

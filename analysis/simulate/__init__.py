@@ -109,7 +109,13 @@ def _table(motion: PPoly, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     """u, u̇, ü on t, held outside the breaks exactly as the kernel does."""
     tc = np.clip(t, motion.x[0], motion.x[-1])
     inside = (t > motion.x[0]) & (t < motion.x[-1])
-    return motion(tc), np.where(inside, motion(tc, 1), 0.0), np.where(inside, motion(tc, 2), 0.0)
+    ud = np.where(inside, motion(tc, 1), 0.0)
+    return _held(motion, t), ud, np.where(inside, motion(tc, 2), 0.0)
+
+
+def _held(motion: PPoly, t: np.ndarray) -> np.ndarray:
+    """u on t, held at its end values outside the breaks."""
+    return motion(np.clip(t, motion.x[0], motion.x[-1]))
 
 
 @dataclass(frozen=True)
@@ -196,8 +202,6 @@ def simulate_runs(model: IsolatorModel, setups: Sequence[RunSetup],
     for k, (s, (start, n)) in enumerate(zip(setups, grids)):
         rows = [j for j, (_, kk) in enumerate(jobs) if kk == k]
         t = start + s.dt * np.arange(n)
-        # u only, held outside the breaks as in `_table` (its derivatives are not needed)
-        u = s.motion(np.clip(t, s.motion.x[0], s.motion.x[-1]))
-        out.append(BatchResponse(t=t, u=u, z=z[rows, :n],
+        out.append(BatchResponse(t=t, u=_held(s.motion, t), z=z[rows, :n],
                                  zd=zd[rows, :n], xdd=xdd[rows, :n]))
     return out

@@ -430,22 +430,6 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
 
 
 @njit(cache=True, parallel=True)
-def simulate_many(kinds, gated, P, breaks, coefs, t0, dt, n_out, substeps, z0, zd0, S0,
-                  out_z, out_zd, out_xdd):
-    """simulate_one for each row of P (N, n_params), in parallel; responses only.
-
-    S0 (N, J): each row's initial internal states.
-    """
-    nt = kinds.shape[0]
-    for r in prange(P.shape[0]):
-        f = np.empty((nt + 1, 0))
-        s = np.empty((nt, 0))
-        st = np.empty(0)
-        simulate_one(kinds, gated, P[r], breaks, coefs, t0, dt, n_out, substeps, z0, zd0, S0[r],
-                     out_z[r], out_zd[r], out_xdd[r], f, s, st, False)
-
-
-@njit(cache=True, parallel=True)
 def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_out, substeps,
                   z0, zd0, S0, out_z, out_zd, out_xdd):
     """simulate_one for each job in parallel: parameter row P[r] on run job_run[r].
