@@ -75,6 +75,7 @@ def test_the_loop_finds_the_undeclared_effect(spec, parameter, truth):
     ("sensor_gain=0.05", "sensor_gain", 0.05),
     # failed before the kernel kept the springs off inside the dead band (docs/loop.md)
     ("thermal_damping_drift=-464", "c_T", -464.0),
+    ("hysteresis=7400", "k_h", 7400.0),  # measured 7405 ± 0.6 N/m, 0.98 σ; seed 100 below
 ])
 def test_effects_at_five_percent_of_the_peak_acceleration_are_named_first(spec, parameter,
                                                                           truth):
@@ -87,6 +88,20 @@ def test_effects_at_five_percent_of_the_peak_acceleration_are_named_first(spec, 
     # "within ~20 % of the noise floor" (issue 6); measured 0.97-1.02
     assert result.diagnosis_after.residual_over_noise < 1.1
     assert not result.unexplained
+
+
+def test_hysteresis_is_not_taken_for_the_coulomb_friction_it_resembles():
+    """At 7400 N/m the Bouc–Wen force saturates at ±92 N, the size of breakaway, and on
+    this draw its linearised score ranks fourth (3505, behind a preload 4800, a cubic
+    4449 and Coulomb friction 3547). With only the two best scores and the two best
+    equation-error cuts refitted, Coulomb friction was named at 8.19 σ. Every candidate
+    within a factor of two of the best score is now refitted, and only the Bouc–Wen
+    term's refit comes near the noise (measured 7437.6 N/m, 1.15 σ after)."""
+    result = close_loop(report_model("average"), campaign("hysteresis=7400", seed=100))
+    assert result.effects_added[:1] == ["hysteresis"], result.refused
+    assert result.steps[0].value == pytest.approx(7400.0, rel=0.03)
+    assert result.diagnosis_before.residual_over_noise > 5.0
+    assert result.diagnosis_after.residual_over_noise < 1.2  # issue 6: within ~20 %
 
 
 def test_a_force_offset_is_refitted_from_the_constants_the_loop_started_from():

@@ -236,6 +236,11 @@ def _read_channels(path: Path) -> RunFile:
 def _check_time(path: Path, t: np.ndarray, what: str) -> None:
     if t.size < MIN_SAMPLES:
         raise DataError(f"{path}: {what} has {t.size} samples, need at least {MIN_SAMPLES}")
+    broken = np.flatnonzero(~np.isfinite(t))
+    if broken.size:  # a damaged file (found by fuzzing: one flipped bit made an inf)
+        k = int(broken[0])
+        raise DataError(f"{path}: {what}: time is {t[k]} at sample {k}, {broken.size} "
+                        "samples without a finite time")
     step = np.diff(t)
     bad = np.flatnonzero(step <= 0)
     if bad.size:

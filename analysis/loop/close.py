@@ -41,7 +41,9 @@ from analysis.table_motion import estimate_table_motion
 
 BASE_FREE = ("k1", "k2", "c1", "c2", "alpha", "beta")
 LINEAR = ("k1", "k2", "c1", "c2")
-SHORTLIST = 3
+SHORTLIST = 2  # the strongest by score, and by equation error
+CLOSE_SCORE = 0.5  # of the best score: a candidate the linearised test cannot set apart
+MAX_BY_SCORE = 4
 MIN_SCORE = 10.83  # χ²₁ at 0.1 %
 MIN_T = 3.0
 MAX_CORRELATION = 0.99
@@ -159,30 +161,77 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     progress("loop: predicted residual cut " + ", ".join(
         f"{c.name} {100 * s.predicted_rss_drop:.1f} %" for s, c, _ in scores[:4]))
     ee = {c.name: equation_error_drop(cand_h, runs, s.name) for s, c, cand_h in scores}
-    by_ee = sorted((n for n in ee if ee[n] > 0), key=lambda n: -ee[n])[:SHORTLIST - 1]
-    shortlist = [x for x in scores[:SHORTLIST - 1]]
-    shortlist += [x for x in scores if x[1].name in by_ee and x not in shortlist]
-    refused, refits = [], []
+    by_ee = sorted((n for n in ee if ee[n] > 0), key=lambda n: -ee[n])[:SHORTLIST]
+    # Scores within a factor of two of the best are not told apart by a linearised test
+    # (hysteresis at 7400 N/m scores 3505 where a preload scores 4800 and a Coulomb
+    # friction 3547, and only its refit reaches the noise); the refits go in order of
+    # score and stop at one that fits to the noise, so a wide shortlist costs little
+    # where one candidate clearly explains the residual
+    best = scores[0][0].statistic if scores else 0.0
+    close = [x for x in scores if x[0].statistic >= CLOSE_SCORE * best][:MAX_BY_SCORE]
+    shortlist = [x for i, x in enumerate(scores)
+                 if i < SHORTLIST or x in close or x[1].name in by_ee]
+    refused, pending = [], []
     for s, c, cand_h in shortlist:
         if s.statistic < MIN_SCORE:
             refused.append({"candidate": c.name, "reason": f"score {s.statistic:.1f} < "
                             f"{MIN_SCORE} (χ²₁, 0.1 %)"})
-            continue
-        progress(f"loop: refitting with {c.name}")
+        else:
+            pending.append((s, c, cand_h))
+    refits: list[tuple] = []
+    while pending:
+        # refitted in order of score; one that reaches the noise is judged before the
+        # rest are refitted (they are only if it is refused): at the noise nothing can
+        # fit much better, and the weaker candidates' refits were most of the loop's time
+        batch = []
+        while pending:
+            s, c, cand_h = pending.pop(0)
+            progress(f"loop: refitting with {c.name}")
+            batch.append(_candidate_refit(fit, free, runs, s, c, cand_h))
+            if batch[-1][4].residual_over_noise <= NOISE_LEVEL:
+                break
+        refits += batch
+        if all(r[4].residual_over_noise > NOISE_LEVEL for r in refits):
+            # no candidate reached the noise from the fitted constants (so none is
+            # pending): perhaps they have soaked up the effect (_from_start)
+            batch = [(s, c, cand_h, v, _refit_from_start(start, cf, cand_h, free, s, c, v, data,
+                                                         progress))
+                     for s, c, cand_h, v, cf in batch]
+        step, why, better = _judge(fit, free, runs, diag, batch, progress)
+        refused.extend(why)
+        if step is not None or better is not None:
+            return step, refused, better
+    return None, refused, None
+
+
+def _candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score,
+                     c: Candidate, cand_h: Hypothesis) -> tuple:
+    """The candidate refitted with every free constant from its starts; the best of them.
+
+    Appendix A's solution comes first: it has no valleys, and where the refit from it
+    reaches the noise, the scan of sizes is not needed (on the confusion suite the
+    scan's start then never ended more than 0.001 σ lower, and took up to 40
+    iterations to get there).
+    """
+    data = [r.data for r in runs]
+    names = free + [s.name]
+    fits = [_refit(h0, data, names, {s.name: c})
+            for h0 in _equation_error_start(cand_h, runs, s.name, c)]
+    sizes: list[float] = []
+    if not fits or fits[0].residual_over_noise > NOISE_LEVEL:
         sizes = _starts(cand_h, data, s, c)
-        starts = [cand_h.with_values({s.name: v}) for v in sizes]
-        starts += _equation_error_start(cand_h, runs, s.name, c)
-        fits = [_refit(h0, data, free + [s.name], {s.name: c}) for h0 in starts]
-        refits.append((s, c, cand_h, sizes, min(fits, key=lambda f: f.rss)))
-    if refits and all(r[4].residual_over_noise > NOISE_LEVEL for r in refits):
-        # no candidate reached the noise from the fitted constants: perhaps they have
-        # soaked up the effect (_from_start); where one did, no other start can do
-        # better than the noise, and the extra refits would cost a third more rounds
-        refits = [(s, c, cand_h, v, _refit_from_start(start, cf, cand_h, free, s, c, v, data,
-                                                      progress))
-                  for s, c, cand_h, v, cf in refits]
-    passing = []
-    for s, c, cand_h, _, cf in refits:
+        fits += [_refit(cand_h.with_values({s.name: v}), data, names, {s.name: c})
+                 for v in sizes]
+    return s, c, cand_h, sizes, min(fits, key=lambda f: f.rss)
+
+
+def _judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis, refits,
+           progress: Callable[[str], None]):
+    """The best refitted candidate that is significant, not a lower valley of the model
+    without it, and predicts held-out runs better: (step, refused, better fit or None)."""
+    data = [r.data for r in runs]
+    refused, passing = [], []
+    for s, c, _, _, cf in refits:
         reason = _significance(fit, cf, s.name)
         if reason:
             refused.append({"candidate": c.name, "reason": reason})
