@@ -37,6 +37,13 @@ def campaign(*effects: str, seed: int = 1, distort=None) -> list[LoopRun]:
 def test_a_right_model_gets_nothing_added():
     result = close_loop(report_model("average"), campaign(seed=2))
     assert result.effects_added == []
+    # every force candidate is measured against the fitted terms; only the preload is
+    # all but reproduced by them (k2 tanh(αz) over |z| > δ)
+    assert len(result.conditioning) == 9
+    assert [c.candidate for c in result.indistinguishable] == ["preload"]
+    assert "k2" in result.indistinguishable[0].like
+    assert min(c.unique_fraction for c in result.conditioning
+               if c.candidate != "preload") > 0.05
     assert not result.unexplained
     assert result.diagnosis_after.residual_over_noise == pytest.approx(1.0, abs=0.05)
     assert result.diagnosis_after.white
@@ -169,6 +176,10 @@ def test_the_report_says_what_was_added_and_why(tmp_path):
     assert doc["parameters"]["c_q"]["unit"] == "N/(m/s)^2"
     text = format_loop(result)
     assert "step 1: added quadratic_damping" in text and "held out" in text
+    # the preload is the tanh spring over |z| > δ on these runs, and the report says so
+    flagged = [c["candidate"] for c in doc["conditioning"] if c["indistinguishable"]]
+    assert flagged == ["preload"]
+    assert "not testable with these runs: preload" in text
     paths = loop_figures(result, tmp_path)
     assert [p.name for p in paths] == ["loop_step1_quadratic_damping.png"]
     assert paths[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -34,6 +34,7 @@ import numpy as np
 from analysis.identify.output_error import RunData, noise_sigma
 from analysis.identify.regressors import campaign_regressors
 from analysis.loop.candidates import CANDIDATES, Candidate
+from analysis.loop.conditioning import Collinearity, collinearity
 from analysis.loop.evidence import Diagnosis, diagnose
 from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit, score
 from analysis.model.isolator import IsolatorModel
@@ -100,10 +101,17 @@ class LoopResult:
     unexplained: bool
     description: str
     refused: tuple[dict[str, object], ...] = field(default=())
+    # each force candidate not added, against the final model's terms (`conditioning`)
+    conditioning: tuple[Collinearity, ...] = field(default=())
 
     @property
     def effects_added(self) -> list[str]:
         return [s.added for s in self.steps]
+
+    @property
+    def indistinguishable(self) -> list[Collinearity]:
+        """Force candidates the final model's own terms reproduce almost entirely."""
+        return [c for c in self.conditioning if c.indistinguishable]
 
 
 def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int = MAX_EFFECTS,
@@ -142,7 +150,23 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     return LoopResult(base=base, final=fit, steps=tuple(steps),
                       diagnosis_before=_diagnose(base, runs), diagnosis_after=final_diag,
                       error_before=run_errors(base, runs), error_after=run_errors(fit, runs),
-                      unexplained=unexplained, description=text, refused=tuple(refused))
+                      unexplained=unexplained, description=text, refused=tuple(refused),
+                      conditioning=conditioning(fit, runs))
+
+
+def conditioning(fit: Fit, runs: Sequence[LoopRun]) -> tuple[Collinearity, ...]:
+    """How much of each force candidate not in the model its fitted terms can reproduce,
+    along the final fit's motion: where nearly all, no refit could have named it."""
+    model = fit.hypothesis.model
+    z, zd = _states(fit, runs)
+    out = []
+    for c in CANDIDATES.values():
+        if not c.term_kind:
+            continue
+        with_it, name = c.add_to(model)
+        if with_it.parameters()[name] == 0.0:
+            out.append(collinearity(with_it, name, z, zd, runs[0].data.dt, c.name))
+    return tuple(out)
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,

@@ -41,6 +41,7 @@ def loop_json(result: LoopResult) -> dict[str, object]:
         "residual_after": result.diagnosis_after.as_dict(),
         "unexplained": {"value": result.unexplained, "description": result.description},
         "refused": list(result.refused),
+        "conditioning": [c.as_dict() for c in result.conditioning],
         "parameters": parameters_json(result.final),
     }
 
@@ -68,6 +69,11 @@ def format_loop(result: LoopResult) -> str:
         lines.extend("    " + row for row in _error_rows(s.error_before, s.error_after))
     if not result.steps:
         lines.append("  no candidate effect was significant")
+    for c in result.indistinguishable:
+        lines.append(f"  not testable with these runs: {c.candidate} — "
+                     f"{100 * (1 - c.unique_fraction):.2f} % of its force pattern is the "
+                     f"model's own {', '.join(c.like)} (variance inflation "
+                     f"{c.variance_inflation:.0f})")
     lines.append(f"  final: {result.description}")
     if result.unexplained:
         lines.append("  UNEXPLAINED STRUCTURE: no effect in the library accounts for it")
