@@ -34,7 +34,7 @@ import numpy as np
 from analysis.identify.output_error import RunData, noise_sigma
 from analysis.identify.regressors import campaign_regressors
 from analysis.loop.candidates import CANDIDATES, Candidate
-from analysis.loop.conditioning import Collinearity, collinearity
+from analysis.loop.conditioning import Collinearity, collinearities
 from analysis.loop.evidence import Diagnosis, diagnose
 from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit, score
 from analysis.model.isolator import IsolatorModel
@@ -157,16 +157,14 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
 def conditioning(fit: Fit, runs: Sequence[LoopRun]) -> tuple[Collinearity, ...]:
     """How much of each force candidate not in the model its fitted terms can reproduce,
     along the final fit's motion: where nearly all, no refit could have named it."""
-    model = fit.hypothesis.model
-    z, zd = _states(fit, runs)
-    out = []
+    model, terms = fit.hypothesis.model, []
     for c in CANDIDATES.values():
-        if not c.term_kind:
-            continue
-        with_it, name = c.add_to(model)
-        if with_it.parameters()[name] == 0.0:
-            out.append(collinearity(with_it, name, z, zd, runs[0].data.dt, c.name))
-    return tuple(out)
+        if c.term_kind:
+            model, name = c.add_to(model)  # every candidate at zero: one regressor matrix
+            if model.parameters()[name] == 0.0:
+                terms.append((c.name, name))
+    z, zd = _states(fit, runs)
+    return tuple(collinearities(model, terms, z, zd, runs[0].data.dt))
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
@@ -192,9 +190,9 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     # score and stop at one that fits to the noise, so a wide shortlist costs little
     # where one candidate clearly explains the residual
     best = scores[0][0].statistic if scores else 0.0
-    close = [x for x in scores if x[0].statistic >= CLOSE_SCORE * best][:MAX_BY_SCORE]
+    close = min(sum(s.statistic >= CLOSE_SCORE * best for s, _, _ in scores), MAX_BY_SCORE)
     shortlist = [x for i, x in enumerate(scores)
-                 if i < SHORTLIST or x in close or x[1].name in by_ee]
+                 if i < max(SHORTLIST, close) or x[1].name in by_ee]
     refused, pending = [], []
     for s, c, cand_h in shortlist:
         if s.statistic < MIN_SCORE:
@@ -202,7 +200,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
                             f"{MIN_SCORE} (χ²₁, 0.1 %)"})
         else:
             pending.append((s, c, cand_h))
-    refits: list[tuple] = []
+    reached = False  # a candidate has fitted to the noise
     while pending:
         # refitted in order of score; one that reaches the noise is judged before the
         # rest are refitted (they are only if it is refused): at the noise nothing can
@@ -213,9 +211,9 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
             progress(f"loop: refitting with {c.name}")
             batch.append(_candidate_refit(fit, free, runs, s, c, cand_h))
             if batch[-1][4].residual_over_noise <= NOISE_LEVEL:
+                reached = True
                 break
-        refits += batch
-        if all(r[4].residual_over_noise > NOISE_LEVEL for r in refits):
+        if not reached:
             # no candidate reached the noise from the fitted constants (so none is
             # pending): perhaps they have soaked up the effect (_from_start)
             batch = [(s, c, cand_h, v, _refit_from_start(start, cf, cand_h, free, s, c, v, data,

@@ -58,18 +58,32 @@ class Collinearity:
 def collinearity(model: IsolatorModel, name: str, z: Sequence[np.ndarray],
                  zd: Sequence[np.ndarray], dt: float, candidate: str = "") -> Collinearity:
     """Least squares of term `name`'s regressor on the other terms of `model` in use."""
+    return collinearities(model, [(candidate or name, name)], z, zd, dt)[0]
+
+
+def collinearities(model: IsolatorModel, terms: Sequence[tuple[str, str]],
+                   z: Sequence[np.ndarray], zd: Sequence[np.ndarray], dt: float
+                   ) -> list[Collinearity]:
+    """`collinearity` of each (candidate, parameter) of `terms`, all terms of `model`
+    (those not in use at zero), from one evaluation of the regressors."""
     Z = campaign_regressors(model, z, zd, dt)
     names = [t.name for t in model.terms]
-    j = names.index(name)
-    others = [i for i, t in enumerate(model.terms) if i != j and t.coef != 0.0]
+    in_use = [i for i, t in enumerate(model.terms) if t.coef != 0.0]
+    return [_unique_part(Z, names, [i for i in in_use if i != names.index(name)],
+                         names.index(name), candidate) for candidate, name in terms]
+
+
+def _unique_part(Z: np.ndarray, names: list[str], others: list[int], j: int,
+                 candidate: str) -> Collinearity:
+    name = names[j]
     y = Z[:, j]
     energy = float(y @ y)
     if energy == 0.0 or not others:
-        return Collinearity(candidate or name, name, 1.0, ())
+        return Collinearity(candidate, name, 1.0, ())
     A = Z[:, others]
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     rest = y - A @ coef
     share = np.abs(coef) * np.linalg.norm(A, axis=0)  # each term's part of the pattern
     order = np.argsort(-share)
     like = tuple(names[others[i]] for i in order if share[i] >= 0.1 * share[order[0]])
-    return Collinearity(candidate or name, name, float(rest @ rest) / energy, like)
+    return Collinearity(candidate, name, float(rest @ rest) / energy, like)
