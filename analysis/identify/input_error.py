@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from analysis.identify.output_error import OutputErrorFit, RunData
+from analysis.identify.output_error import OutputErrorFit, RunData, gram_inverse
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import RunSetup, simulate_runs
 from analysis.table_motion import (
@@ -109,7 +109,7 @@ def input_sensitivities(model: IsolatorModel, runs: Sequence[RunData],
             Jx[:, j] = (xs[k + 1 + j][:n] - x0) / run.sigma_x / h[j]
             # noise: what the few slow parameters average (white σ of u's low frequencies)
             Ju[:, j] = (motions[1 + j](run.t) - u0) / noise / h[j]
-        out.append((Jx, np.linalg.pinv(Ju.T @ Ju)))
+        out.append((Jx, gram_inverse(Ju)))
         k += 1 + h.size
     return out
 
@@ -130,7 +130,7 @@ def with_input_uncertainty(fit: OutputErrorFit, runs: Sequence[RunData],
     if sensitivities is None:
         sensitivities = input_sensitivities(fit.model, runs, tables)
     J = fit.jacobian
-    info_inv = np.linalg.pinv(J.T @ J)
+    info_inv = gram_inverse(J)
     cov_log = fit.covariance / np.outer(fit.values, fit.values)
     start = 0
     for run, (Jx, Cp) in zip(runs, sensitivities):

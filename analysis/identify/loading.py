@@ -57,6 +57,11 @@ JUMP_NOISE = 8.0  # σ of a difference (√2 σ of the samples) a jump must exce
 HEADER = re.compile(r"^\s*([^\[\]]+?)\s*(?:\[\s*([^\]]+?)\s*\])?\s*$")
 
 
+# s: a run file's channels come by different paths (CAN, serial), each placed late by
+# its path's smallest delivery latency; measured p99 0.24 ms (docs/time_alignment.md)
+RUNFILE_SKEW_LIMIT = 0.25e-3
+
+
 @dataclass
 class Loaded:
     """The runs read, and warnings about data that was usable but imperfect."""
@@ -84,7 +89,9 @@ def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loade
             for column, v in (("u", u), ("x", x)):
                 _check_speed(path, column, t, v, out.warnings)
         name = _unique(path.stem, names)
-        out.runs.append(MeasuredRun(name, t, u, x, float(mass)))
+        rig_file = path.suffix.lower() in (".h5", ".hdf5")
+        out.runs.append(MeasuredRun(name, t, u, x, float(mass),
+                                    skew_limit=RUNFILE_SKEW_LIMIT if rig_file else 0.0))
     return out
 
 

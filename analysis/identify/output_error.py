@@ -38,6 +38,25 @@ UNSTABLE = 1e6  # residual (noise units) of a sample whose simulation diverged
 # far below the change of 1 that one standard error of a constant makes
 COST_TOL = 1e-6
 HOLD_LOG_STD = 0.5  # a constant less determined than ±65 % is held (see `determined`)
+GRAM_RCOND = 1e-12  # singular values of J below this × the largest: a direction not determined
+
+
+def gram_inverse(J: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁻¹ from the SVD of J, not by inverting JᵀJ.
+
+    Forming JᵀJ squares J's condition number, and its pseudo-inverse can come out
+    with a slightly negative diagonal, or change a verdict with the last bits of
+    the BLAS kernel. From J = U S Vᵀ it is V S⁻² Vᵀ: symmetric and positive by
+    construction. A direction the data do not determine (s below GRAM_RCOND of
+    the largest) gets the variance of that floor, a very large one, where a
+    pseudo-inverse would give it none.
+    """
+    _, sv, vt = np.linalg.svd(np.asarray(J, float), full_matrices=False)
+    if sv.size == 0:
+        return np.zeros((J.shape[1], J.shape[1]))
+    sv = np.maximum(sv, GRAM_RCOND * max(float(sv[0]), np.finfo(float).tiny))
+    w = vt.T / sv
+    return w @ w.T
 
 
 @dataclass(frozen=True)
@@ -133,6 +152,9 @@ class OutputErrorFit:
     input_covariance: bool = False  # True once the input estimate's share is in `covariance`
     # per run (J_x, C_p) of that share (`input_error.input_sensitivities`), for reuse
     input_sensitivity: tuple = field(default=(), repr=False, compare=False)
+    # held constants: (lowest, highest) value the runs cannot tell from the held one
+    # (a slice of the cost, `slice_chi2`); absent where not scanned
+    consistent: dict[str, tuple[float, float]] = field(default_factory=dict, compare=False)
 
     @property
     def ci95(self) -> np.ndarray:
@@ -210,6 +232,30 @@ def start_state(run: RunData, sensor_gain: float = 0.0, dead_band: float = 0.0
     return z0, 0.0
 
 
+def _setups(model: IsolatorModel, runs: Sequence[RunData]) -> list[RunSetup]:
+    return [RunSetup(run.motion, run.t[-1] - run.t[0], run.dt, run.t[0],
+                     *start_state(run, dead_band=model.dead_band)) for run in runs]
+
+
+def _simulated_x(run: RunData, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Simulated x (rows, n); a diverged simulation far off."""
+    return np.where(np.isfinite(z), z + u, UNSTABLE * run.sigma_x)
+
+
+def slice_chi2(model: IsolatorModel, runs: Sequence[RunData], name: str,
+               values: Sequence[float]) -> np.ndarray:
+    """χ² (noise units) of all runs with constant `name` at each of `values`, the rest
+    as in `model`: one parallel batch. A slice of the cost, not a profile: the other
+    constants are not refitted, so it can only understate how far a value can go."""
+    rows = np.tile(model.vector(), (len(values), 1))
+    rows[:, model.vector_index()[name]] = values
+    batches = simulate_runs(model, _setups(model, runs), [rows] * len(runs))
+    chi2 = np.zeros(len(values))
+    for run, b in zip(runs, batches):
+        chi2 += np.sum(((_simulated_x(run, b.z, b.u) - run.x) / run.sigma_x) ** 2, axis=1)
+    return chi2
+
+
 def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray,
                    runs: Sequence[RunData], with_jacobian: bool,
                    base: Sequence[np.ndarray] | None = None
@@ -225,12 +271,10 @@ def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray
     rows = rows if with_jacobian else rows[:1]
     if base is not None:
         rows = rows[1:]
-    setups = [RunSetup(run.motion, run.t[-1] - run.t[0], run.dt, run.t[0],
-                       *start_state(run, dead_band=model.dead_band)) for run in runs]
-    batches = simulate_runs(model, setups, [rows] * len(runs))
+    batches = simulate_runs(model, _setups(model, runs), [rows] * len(runs))
     res, jac, xs = [], [], []
     for k, (run, b) in enumerate(zip(runs, batches)):
-        x = np.where(np.isfinite(b.z), b.z + b.u, UNSTABLE * run.sigma_x)  # diverged: far off
+        x = _simulated_x(run, b.z, b.u)
         if base is not None:
             x = np.vstack([base[k][None, :], x])
         xs.append(x[0])
@@ -238,6 +282,11 @@ def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray
         if with_jacobian:
             jac.append(((x[1:] - x[0]) / run.sigma_x / FD_STEP).T)
     return np.concatenate(res), (np.vstack(jac) if with_jacobian else None), xs
+
+
+def scaled_residual(model: IsolatorModel, runs: Sequence[RunData]) -> np.ndarray:
+    """(x_sim − x)/σ_x of all runs, concatenated, at `model`."""
+    return _simulate_runs(model, (), np.empty(0), runs, False)[0]
 
 
 def determined(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str],
@@ -264,7 +313,7 @@ def determined(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[st
     """
     theta = np.log([model.parameters()[n] for n in names])
     r, J, _ = _simulate_runs(model, names, theta, runs, True)
-    log_std = np.sqrt(np.maximum(np.diag(np.linalg.pinv(J.T @ J)), 0.0))
+    log_std = np.sqrt(np.diag(gram_inverse(J)))
     keep = tuple(n for n, s in zip(names, log_std) if s <= limit)
     # each column is its own constant's perturbation from one base point: the
     # determined ones' columns are the Jacobian of a fit of those alone
@@ -327,7 +376,7 @@ def _fit_at(model: IsolatorModel, names: tuple[str, ...], theta: np.ndarray, r: 
     fitted = model.with_parameters(**dict(zip(names, values.tolist())))
     dof = max(r.size - len(names), 1)
     s2 = float(r @ r / dof)
-    cov_theta = s2 * np.linalg.pinv(J.T @ J)
+    cov_theta = s2 * gram_inverse(J)
     cov = cov_theta * np.outer(values, values)  # delta method from log coordinates
     return OutputErrorFit(model=fitted, names=names, values=values,
                           std=np.sqrt(np.maximum(np.diag(cov), 0.0)), covariance=cov,

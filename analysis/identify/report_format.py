@@ -52,6 +52,14 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
     if fit.held:
         lines.append(f"held at the start value (not determined by these runs): "
                      f"{', '.join(fit.held)}")
+    for n, (low, high) in (fit.joint.consistent.items() if fit.joint else ()):
+        lo, unit = _convert(low, si_units[n], units)
+        hi, _ = _convert(high, si_units[n], units)
+        lines.append(f"  {n}: the runs cannot tell {lo:.3g} to {hi:.3g} {unit} apart "
+                     f"(within chi2 3.84 of the best, a decade either way scanned)")
+    if fit.skew:
+        lines.append("table channel time offset, fitted (ms, ± 95 %): " + ", ".join(
+            f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}" for r, (s, e) in fit.skew.items()))
     return "\n".join(lines)
 
 
@@ -104,6 +112,12 @@ def fit_json(fit: IsolatorFit) -> dict:
     a, p = fit.appendix_a, fit.projection
     return {"parameters": params, "runs": runs, "error": error, "model": model,
             "estimate": fit.estimate, "held": list(fit.held), "flagged_runs": fit.flagged,
+            # held constants: the range of values the runs cannot tell apart (SI)
+            "consistent_range": {n: list(r) for n, r in
+                                 (fit.joint.consistent.items() if fit.joint else ())},
+            # run → the table channel's fitted time offset (s), std; null: not fitted
+            "channel_skew_s": (None if fit.skew is None else
+                               {r: {"value": s, "std": e} for r, (s, e) in fit.skew.items()}),
             "appendix_a": {"names": list(a.names), "values": a.as_dict(),
                            "std": dict(zip(a.names, a.std.tolist())), "sigma2_N2": a.sigma2,
                            "A": a.A.tolist(), "b": a.b.tolist(),
