@@ -38,8 +38,9 @@ from analysis.identify.output_error import (
     determined,
     initial_offset,
     one_step,
+    correlated_noise_factor,
     refine,
-    slice_chi2,
+    slice_residuals,
 )
 from analysis.identify.regressors import regressor_matrix
 from analysis.identify.varpro import Data, Projection, project
@@ -396,29 +397,34 @@ def _nonsmooth(fit: OutputErrorFit, runs: Sequence[RunData], name: str, progress
     """`fit` with constant `name` freed if the runs determine it, else held; and which.
 
     The cost is sliced at SLICE_FACTORS of the held value with every other constant
-    at the fit. Freed only when a value there beats the held one by SIGNIFICANT_CHI2
-    and the fit from it, with `name` free, keeps that gain and leaves every constant
+    at the fit. Freed only when a value there beats the held one by SIGNIFICANT_CHI2,
+    scaled by how much the residual's own correlation moves a cost difference along
+    that change (`correlated_noise_factor`: a model µm off the truth moves it many times
+    more than white noise), and the fit from it, with `name` free, keeps that gain and leaves every constant
     within HOLD_LOG_STD: a freed breakaway force that ends in a valley above the held fit's
     cost (one where a 10× force trades off against α) is refused. Held, the range of
     values within CONSISTENT_CHI2 of the best is kept as `fit.consistent[name]`.
     """
     held = fit.model.parameters()[name]
     values = held * np.asarray(SLICE_FACTORS)
-    chi2 = slice_chi2(fit.model, runs, name, values)
-    base = float(chi2[SLICE_FACTORS.index(1.0)])
+    res = slice_residuals(fit.model, runs, name, values)
+    chi2 = np.sum(res**2, axis=1)
+    i0 = SLICE_FACTORS.index(1.0)
+    base = float(chi2[i0])
     best = int(np.argmin(chi2))
-    if base - chi2[best] > SIGNIFICANT_CHI2:
+    kappa = correlated_noise_factor(res[i0], res[best] - res[i0], [r.t.size for r in runs])
+    if base - chi2[best] > SIGNIFICANT_CHI2 * kappa:
         progress(f"  {name}: the runs prefer {values[best]:.4g} (chi2 {base - chi2[best]:.0f} "
-                 "lower): freed")
+                 f"lower, correlated noise x{kappa:.2g}): freed")
         names = fit.names + (name,)
         free = refine(fit.model.with_parameters(**{name: float(values[best])}), runs, names)
         cut = base - float(free.residual @ free.residual)
         loose = free.std > HOLD_LOG_STD * free.values
-        if cut > SIGNIFICANT_CHI2 and not loose.any():
+        if cut > SIGNIFICANT_CHI2 * kappa and not loose.any():
             return free, True
         progress(f"  {name}: freed, the fit gains chi2 {cut:.0f} but leaves "
                  f"{', '.join(np.array(names)[loose]) or 'nothing'} undetermined: held")
-    near = values[chi2 <= chi2.min() + CONSISTENT_CHI2]
+    near = values[chi2 <= chi2.min() + CONSISTENT_CHI2 * kappa]
     return replace(fit, consistent={**fit.consistent,
                                     name: (float(near.min()), float(near.max()))}), False
 

@@ -55,8 +55,10 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
     for n, (low, high) in (fit.joint.consistent.items() if fit.joint else ()):
         lo, unit = _convert(low, si_units[n], units)
         hi, _ = _convert(high, si_units[n], units)
-        lines.append(f"  {n}: the runs cannot tell {lo:.3g} to {hi:.3g} {unit} apart "
-                     f"(within chi2 3.84 of the best, a decade either way scanned)")
+        scanned = "a decade either way scanned, other constants at the fit"
+        lines.append(f"  {n}: the runs cannot tell {lo:.3g} to {hi:.3g} {unit} apart ({scanned})"
+                     if hi > lo else f"  {n}: the scan's lowest cost is at {lo:.3g} {unit}, "
+                     f"not significantly below the held value ({scanned})")
     if fit.skew:
         lines.append("table channel time offset, fitted (ms, ± 95 %): " + ", ".join(
             f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}" for r, (s, e) in fit.skew.items()))
