@@ -35,10 +35,10 @@ from analysis.identify.output_error import (
     HOLD_LOG_STD,
     OutputErrorFit,
     RunData,
+    correlated_noise_factor,
     determined,
     initial_offset,
     one_step,
-    correlated_noise_factor,
     refine,
     slice_residuals,
 )
