@@ -8,8 +8,13 @@ and the place the mass comes to rest in the dead band, and a mass resting
 with 25 µm sensor noise, a 50 Hz spline leaves the true model 3–6 times the
 noise from the data, the exact input 1.0 times.
 
-A step-pulse table moves in minimum-jerk ramps between rests (rig.profile), a
-handful of numbers per ramp. Fitting those numbers to the thousands of samples
+A step-pulse table moves in ramps between rests, a handful of numbers per ramp.
+This rig's ramps are minimum-jerk (rig.profile); other rigs' motion controllers
+use the other standard motion laws: cycloidal, harmonic (half-cosine) or
+parabolic (constant acceleration). The shape is one more choice of the fit:
+minimum-jerk is tried first, and where it does not reach the noise every shape
+of `RAMP_SHAPES` is fitted and the one with the least residual is kept (a wrong
+shape misses a 0.14 m ramp by hundreds of µm: the choice is never close). Fitting those numbers to the thousands of samples
 estimates the input far better than the noise of any one sample. This module
 fits them: rests are found from the data, each moving stretch is one ramp or
 several back to back (split where the motion turns), and the fit is accepted
@@ -39,6 +44,7 @@ White noise keeps the plain reading.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from scipy.interpolate import PPoly
@@ -55,6 +61,31 @@ LAG_CHI2 = 25.0  # σ²: the lag must lower the residual sum of squares by this 
 NOISE_SPACING = 3  # samples between the points of the second differences σ_u is read from
 CORRELATED = 1.05  # σ_u three samples apart over adjacent ones beyond which noise is not white
 TIE = 1e-6  # s: ramps closer than this are back to back
+MINIMUM_JERK = "minimum-jerk"
+RAMP_SHAPES = (MINIMUM_JERK, "cycloidal", "harmonic", "parabolic")
+
+
+def ramp_shape(shape: str, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The motion law s(τ) of a ramp and its first two derivatives, τ clipped to [0, 1].
+
+    All rise from 0 to 1 with zero velocity at both ends; minimum-jerk and cycloidal
+    also with zero acceleration, harmonic and parabolic with a step in it.
+    """
+    tau = np.clip(np.asarray(tau, float), 0.0, 1.0)
+    if shape == MINIMUM_JERK:
+        return (tau**3 * (10 - 15 * tau + 6 * tau**2), 30 * tau**2 * (1 - tau) ** 2,
+                60 * tau * (1 - tau) * (1 - 2 * tau))
+    if shape == "cycloidal":
+        w = 2 * np.pi * tau
+        return tau - np.sin(w) / (2 * np.pi), 1 - np.cos(w), 2 * np.pi * np.sin(w)
+    if shape == "harmonic":
+        w = np.pi * tau
+        return (1 - np.cos(w)) / 2, np.pi / 2 * np.sin(w), np.pi**2 / 2 * np.cos(w)
+    if shape == "parabolic":
+        first = tau < 0.5
+        return (np.where(first, 2 * tau**2, 1 - 2 * (1 - tau) ** 2),
+                np.where(first, 4 * tau, 4 * (1 - tau)), np.where(first, 4.0, -4.0))
+    raise ValueError(f"unknown ramp shape {shape!r}; known: {', '.join(RAMP_SHAPES)}")
 
 
 @dataclass(frozen=True)
@@ -68,6 +99,7 @@ class TableMotion:
     # the fitted (start s, duration s, from m, to m) of each commanded ramp; () for a spline
     ramps: tuple[tuple[float, float, float, float], ...] = ()
     lag: float = 0.0  # s, servo lag τ the table follows the ramps with; 0: exactly
+    shape: str = "minimum-jerk"  # the ramps' motion law (RAMP_SHAPES)
     # m, the white noise of the same low-frequency power (what slow parameters see):
     # above `sigma` when neighbouring samples are correlated (interpolation); 0: = sigma
     sigma_lowfreq: float = 0.0
@@ -79,29 +111,65 @@ def estimate_table_motion(t: np.ndarray, u: np.ndarray) -> TableMotion:
     sigma, lowfreq = table_noise_levels(t, u)
     if sigma <= CORRELATED * noise_sigma(u):  # white: adjacent differences, as always
         sigma = lowfreq = noise_sigma(u)
-    plain, lagged = _fit_all(t, u, sigma)
+    # plain ramps of each shape before any lag: a lagged minimum-jerk ramp can pass for
+    # a cycloidal one (a 14 ms lag fitted one to the noise), and this rig's own plain
+    # ramps are found at the cost of one fit
+    best = _best_step_pulse(t, u, sigma, MINIMUM_JERK, lagged=False)
+    if best is None or best[3] > ACCEPT_RATIO:
+        other = _shapes_by_fit(t, u, sigma)[0]
+        tries = [best, _best_step_pulse(t, u, sigma, other, lagged=False)]
+        best = min([b for b in tries if b is not None], key=lambda b: b[3], default=None)
+        for shape in (MINIMUM_JERK, other):  # a lagged servo: this rig's ramps first
+            if best is not None and best[3] <= ACCEPT_RATIO:
+                break
+            tries.append(_best_step_pulse(t, u, sigma, shape))
+            best = min([b for b in tries if b is not None], key=lambda b: b[3], default=None)
+    if best is not None and best[3] <= ACCEPT_RATIO:
+        ramps, lag, shape, ratio = best
+        return TableMotion(step_pulse_motion(t, ramps, lag, shape), "step-pulse fit", ratio,
+                           sigma, tuple(ramps), lag, shape, lowfreq)
+    spline = smooth_motion(t, u)
+    return TableMotion(spline, "smoothing spline", _ratio(spline, t, u, sigma), sigma)
+
+
+def _shapes_by_fit(t, u, sigma) -> list[str]:
+    """The shapes other than minimum-jerk, those whose one-ramp fits of the record's
+    moving stretches leave the least residual first: a cheap look before the full fit."""
+    rest = table_at_rest(u, float(t[1] - t[0]), sigma)
+    ss = {}
+    for shape in RAMP_SHAPES[1:]:
+        total = 0.0
+        for i0, i1 in _moving_stretches(rest):
+            lo, hi = max(i0 - 1, 0), min(i1, t.size - 1)
+            fit = _fit_ramps(t[lo:hi + 1], u[lo:hi + 1], 1, shape)
+            total += np.inf if fit is None else fit[1] ** 2 * (hi + 1 - lo)
+        ss[shape] = total
+    return sorted(ss, key=ss.get)
+
+
+def _best_step_pulse(t, u, sigma, shape, lagged: bool = True):
+    """(ramps, lag, shape, RMS/σ) of the best step-pulse fit with ramps of `shape`,
+    through a servo lag where `lagged` and the lag earns its place; None: no motion."""
+    plain, lagged = _fit_all(t, u, sigma, lagged, shape)
     best = None
     if plain:
-        best = (plain, 0.0, _sum_squares(t, u, plain, 0.0))
+        best = (plain, 0.0, _sum_squares(t, u, plain, 0.0, shape))
     if lagged is not None:
-        ramps, lag = refine_step_pulse(t, u, *lagged, free_lag=True)
-        ss = _sum_squares(t, u, ramps, lag)
+        ramps, lag = refine_step_pulse(t, u, *lagged, free_lag=True, shape=shape)
+        ss = _sum_squares(t, u, ramps, lag, shape)
         # the lag against the plain ramps fitted as jointly (the per-stretch fit is a
         # little off: measured 2·25 σ² on an exact run A, which took a 1 ms lag for it)
         # (a few iterations: a lagged table leaves the plain ramps far off however refined)
         ss_plain = (_sum_squares(t, u, refine_step_pulse(t, u, plain, 0.0, free_lag=False,
-                                                         max_nfev=40)[0], 0.0)
+                                                         max_nfev=40, shape=shape)[0],
+                                 0.0, shape)
                     if plain else np.inf)
         if ss_plain - ss > LAG_CHI2 * sigma**2:
             best = (ramps, lag, ss)
-    if best is not None:
-        ramps, lag, ss = best
-        ratio = float(np.sqrt(ss / u.size) / max(sigma, 1e-300))
-        if ratio <= ACCEPT_RATIO:
-            return TableMotion(step_pulse_motion(t, ramps, lag), "step-pulse fit", ratio, sigma,
-                               tuple(ramps), lag, lowfreq)
-    spline = smooth_motion(t, u)
-    return TableMotion(spline, "smoothing spline", _ratio(spline, t, u, sigma), sigma)
+    if best is None:
+        return None
+    ramps, lag, ss = best
+    return ramps, lag, shape, float(np.sqrt(ss / u.size) / max(sigma, 1e-300))
 
 
 def table_noise(t: np.ndarray, u: np.ndarray) -> float:
@@ -152,33 +220,52 @@ def _ratio(motion: PPoly, t: np.ndarray, u: np.ndarray, sigma: float) -> float:
     return float(np.sqrt(np.mean((motion(t) - u) ** 2)) / max(sigma, 1e-300))
 
 
-def _sum_squares(t, u, ramps, lag) -> float:
-    return float(np.sum((step_pulse_value(t, ramps, lag) - u) ** 2))
+def _sum_squares(t, u, ramps, lag, shape=MINIMUM_JERK) -> float:
+    return float(np.sum((step_pulse_value(t, ramps, lag, shape) - u) ** 2))
 
 
 # -- the model: commanded ramps, through the servo lag ----------------------------------
 
-def step_pulse_value(t: np.ndarray, ramps, lag: float = 0.0) -> np.ndarray:
+def step_pulse_value(t: np.ndarray, ramps, lag: float = 0.0,
+                     shape: str = MINIMUM_JERK) -> np.ndarray:
     """u at `t` (≥ t[0]) of the ramps followed through the lag τ (s); 0: the ramps."""
-    command = ramps_motion(t, ramps)
+    if lag <= 0.0 and shape != MINIMUM_JERK:
+        return _ramps_value(np.asarray(t, float), *_times_levels(ramps), shape)
+    command = command_motion(t, ramps, shape)
     if lag <= 0.0:
         return command(t)
     return lag_response(t, command, lag)[0]
 
 
-def step_pulse_motion(t: np.ndarray, ramps, lag: float = 0.0) -> PPoly:
+def step_pulse_motion(t: np.ndarray, ramps, lag: float = 0.0,
+                      shape: str = MINIMUM_JERK) -> PPoly:
     """The fitted table motion the simulator reads, on [t[0], t[-1]].
 
-    Without lag: the ramps' exact quintic PPoly. With lag: the quintic Hermite
-    through the lagged motion's position, velocity and acceleration at the samples
-    `t` (C²; the lagged motion is C³, so it is off by far less than a nanometre).
+    Minimum-jerk without lag: the ramps' exact quintic PPoly. Otherwise the quintic
+    Hermite through the motion's position, velocity and acceleration at the data's
+    samples `t` (C²: a harmonic ramp's step in acceleration is spread over one
+    sample; a lagged or cycloidal motion is off by far less than a nanometre).
     """
-    command = ramps_motion(t, ramps)
+    command = command_motion(t, ramps, shape)
     if lag <= 0.0:
         return command
     t = np.asarray(t, float)
     p, v, a = lag_response(t, command, lag)
     return quintic_hermite(t, p, v, a)
+
+
+def command_motion(t: np.ndarray, ramps, shape: str = MINIMUM_JERK) -> PPoly:
+    """The commanded ramps as a PPoly: exact quintic pieces for minimum-jerk ramps,
+    else the quintic Hermite through the motion law at the samples `t`."""
+    if shape == MINIMUM_JERK:
+        return ramps_motion(t, ramps)
+    t = np.asarray(t, float)
+    return quintic_hermite(t, *_ramps_derivatives(t, *_times_levels(ramps), shape))
+
+
+def _times_levels(ramps) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """((begin, end) s, (from, to) m) of each ramp."""
+    return [(r[0], r[0] + r[1]) for r in ramps], [(r[2], r[3]) for r in ramps]
 
 
 def lag_response(t: np.ndarray, command: PPoly, lag: float
@@ -272,7 +359,7 @@ def fit_ramps(t: np.ndarray, u: np.ndarray, sigma: float
     return _fit_all(t, u, sigma, lagged=False)[0]
 
 
-def _fit_all(t, u, sigma, lagged: bool = True):
+def _fit_all(t, u, sigma, lagged: bool = True, shape: str = MINIMUM_JERK):
     """Plain ramps of every moving stretch, and (ramps, lag) with a lag (None if not fitted).
 
     The lag starts at the stretches' fitted lags averaged by their length.
@@ -283,7 +370,7 @@ def _fit_all(t, u, sigma, lagged: bool = True):
     slow: list[tuple[float, float, float, float]] = []
     lags, weights = [], []
     for i0, i1 in _moving_stretches(rest):
-        ramps, rms = _fit_stretch(t, u, i0, i1, sigma)
+        ramps, rms = _fit_stretch(t, u, i0, i1, sigma, shape)
         plain.extend(ramps)
         # a plain fit at the noise leaves a lag nothing to explain: skip its fit (~0.1 s
         # a stretch); a 5 ms servo lag misses a ramp by ~250 µm, far above it
@@ -291,7 +378,7 @@ def _fit_all(t, u, sigma, lagged: bool = True):
         if lagged and at_noise:
             lagged = False
         if lagged:  # one lag for the table: every stretch must take it, or none does
-            fit = _fit_stretch_lagged(t, u, i0, i1, sigma, rms) if ramps else None
+            fit = _fit_stretch_lagged(t, u, i0, i1, sigma, rms, shape) if ramps else None
             if fit is not None:
                 slow.extend(fit[0])
                 lags.append(fit[1])
@@ -308,13 +395,13 @@ def _moving_stretches(rest: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
 
 
-def _fit_stretch(t, u, i0, i1, sigma):
+def _fit_stretch(t, u, i0, i1, sigma, shape=MINIMUM_JERK):
     """One stretch of motion (samples i0:i1, rest on both sides): 1..MAX_RAMPS ramps, RMS."""
     lo, hi = max(i0 - 1, 0), min(i1, t.size - 1)
     accept = _stretch_accept(hi + 1 - lo, sigma)
     best = None
     for n in range(1, MAX_RAMPS + 1):
-        fit = _fit_ramps(t[lo:hi + 1], u[lo:hi + 1], n)
+        fit = _fit_ramps(t[lo:hi + 1], u[lo:hi + 1], n, shape)
         if fit is None:
             continue
         ramps, rms = fit
@@ -342,7 +429,7 @@ def _earns_a_ramp(rms_before: float, rms_after: float, k: int, sigma: float) -> 
     return k * (rms_before**2 - rms_after**2) > 25.0 * sigma**2
 
 
-def _fit_stretch_lagged(t, u, i0, i1, sigma, plain_rms):
+def _fit_stretch_lagged(t, u, i0, i1, sigma, plain_rms, shape=MINIMUM_JERK):
     """The stretch as 1..MAX_RAMPS ramps through a lag of its own: (ramps, lag) or None.
 
     Each start is the plain fit of as many ramps; None when the lag does not lower
@@ -352,10 +439,10 @@ def _fit_stretch_lagged(t, u, i0, i1, sigma, plain_rms):
     ts, us = t[lo:hi + 1], u[lo:hi + 1]
     best = None
     for n in range(1, MAX_RAMPS + 1):
-        fit = _fit_ramps(ts, us, n)
+        fit = _fit_ramps(ts, us, n, shape)
         if fit is None:
             continue
-        fit = _fit_ramps_lagged(ts, us, fit[0])
+        fit = _fit_ramps_lagged(ts, us, fit[0], shape)
         if fit is None:
             continue
         if best is None or _earns_a_ramp(best[2], fit[2], hi + 1 - lo, sigma):
@@ -367,8 +454,8 @@ def _fit_stretch_lagged(t, u, i0, i1, sigma, plain_rms):
     return best[0], best[1]
 
 
-def _fit_ramps(t, u, n):
-    """n back-to-back minimum-jerk ramps from u[0] to u[-1] through n − 1 turning levels."""
+def _fit_ramps(t, u, n, shape=MINIMUM_JERK):
+    """n back-to-back ramps from u[0] to u[-1] through n − 1 turning levels."""
     levels0 = _turning_levels(u, n)
     if levels0 is None:
         return None
@@ -377,7 +464,7 @@ def _fit_ramps(t, u, n):
     x0 = np.r_[cuts, levels0]
 
     def residual(p):
-        return _ramps_value(t, p[: n + 1], p[n + 1:]) - u
+        return _back_to_back_value(t, np.sort(p[: n + 1]), p[n + 1:], shape) - u
 
     lower = np.r_[np.full(n + 1, t0), np.full(n + 1, -np.inf)]
     upper = np.r_[np.full(n + 1, t1), np.full(n + 1, np.inf)]
@@ -390,7 +477,7 @@ def _fit_ramps(t, u, n):
     return ramps, float(np.sqrt(np.mean(sol.fun**2)))
 
 
-def _fit_ramps_lagged(t, u, ramps):
+def _fit_ramps_lagged(t, u, ramps, shape=MINIMUM_JERK):
     """Back-to-back ramps (from a plain fit) and a lag refitted together: (ramps, lag, RMS)."""
     n = len(ramps)
     t0, t1 = float(t[0]), float(t[-1])
@@ -400,7 +487,7 @@ def _fit_ramps_lagged(t, u, ramps):
 
     def residual(p):
         tm = np.sort(p[: n + 1])
-        return _lagged_ramps_value(t, tm, p[n + 1:2 * n + 2], p[-1]) - u
+        return _lagged_ramps_value(t, tm, p[n + 1:2 * n + 2], p[-1], shape) - u
 
     lower = np.r_[np.full(n + 1, t0), np.full(n + 1, -np.inf), 0.0]
     upper = np.r_[np.full(n + 1, t1), np.full(n + 1, np.inf), MAX_LAG]
@@ -413,10 +500,14 @@ def _fit_ramps_lagged(t, u, ramps):
     return out, lag, float(np.sqrt(np.mean(sol.fun**2)))
 
 
-def _lagged_ramps_value(t, times, levels, lag):
-    command = _back_to_back(times, levels)
+def _lagged_ramps_value(t, times, levels, lag, shape=MINIMUM_JERK):
     if lag <= 0.0:
-        return _ramps_value(t, times, levels)
+        return _back_to_back_value(t, times, levels, shape)
+    if shape == MINIMUM_JERK:
+        command = _back_to_back(times, levels)
+    else:
+        command = quintic_hermite(t, *_ramps_derivatives(
+            t, list(pairwise(times)), list(pairwise(levels)), shape))
     return lag_response(t, command, lag)[0]
 
 
@@ -440,15 +531,30 @@ def _turning_levels(u, n):
     return np.r_[u[0], u[picks], u[-1]]
 
 
-def _ramps_value(t, times, levels):
-    out = np.full(t.shape, levels[0], float)
-    for k in range(len(times) - 1):
-        T = max(times[k + 1] - times[k], 1e-9)
-        tau = np.clip((t - times[k]) / T, 0.0, 1.0)
-        shape = tau**3 * (10 - 15 * tau + 6 * tau**2)
-        inside = t >= times[k]
-        out[inside] = levels[k] + (levels[k + 1] - levels[k]) * shape[inside]
-    return out
+def _ramps_value(t, spans, moves, shape=MINIMUM_JERK):
+    """u at t of ramps over `spans` (begin, end) between `moves` (from, to), held between."""
+    return _ramps_derivatives(t, spans, moves, shape, values_only=True)
+
+
+def _ramps_derivatives(t, spans, moves, shape, values_only: bool = False):
+    out = np.full(t.shape, moves[0][0], float)
+    v, a = np.zeros(t.shape), np.zeros(t.shape)
+    for (b, e), (u0, u1) in zip(spans, moves):
+        T = max(e - b, 1e-9)
+        inside = t >= b
+        s, s1, s2 = ramp_shape(shape, (t[inside] - b) / T)
+        d = u1 - u0
+        out[inside] = u0 + d * s
+        if not values_only:
+            on = (t[inside] <= e)
+            v[inside] = np.where(on, d / T * s1, 0.0)
+            a[inside] = np.where(on, d / T**2 * s2, 0.0)
+    return out if values_only else (out, v, a)
+
+
+def _back_to_back_value(t, times, levels, shape=MINIMUM_JERK):
+    """Back-to-back ramps between `levels` at `times`."""
+    return _ramps_value(t, list(pairwise(times)), list(pairwise(levels)), shape)
 
 
 def ramps_motion(t: np.ndarray, ramps) -> PPoly:
@@ -497,7 +603,7 @@ def params_ramps(p: np.ndarray, tied: np.ndarray) -> list[tuple[float, float, fl
 
 
 def refine_step_pulse(t: np.ndarray, u: np.ndarray, ramps, lag: float, free_lag: bool,
-                      max_nfev: int | None = None
+                      max_nfev: int | None = None, shape: str = MINIMUM_JERK
                       ) -> tuple[list[tuple[float, float, float, float]], float]:
     """Every ramp (and the lag, when free) fitted at once on the whole record.
 
@@ -517,7 +623,8 @@ def refine_step_pulse(t: np.ndarray, u: np.ndarray, ramps, lag: float, free_lag:
 
     def residual(p: np.ndarray) -> np.ndarray:
         try:
-            return step_pulse_value(t, params_ramps(p, tied), p[-1] if free_lag else lag) - u
+            return step_pulse_value(t, params_ramps(p, tied), p[-1] if free_lag else lag,
+                                    shape) - u
         except ValueError:  # a step that made two ramps overlap: far from the optimum
             return bad
 

@@ -28,6 +28,7 @@ from analysis.identify.output_error import (
     RunData,
     gram_inverse,
     scaled_residual,
+    with_log_covariance,
 )
 from analysis.table_motion import TableMotion, step_pulse_motion
 
@@ -46,7 +47,8 @@ def shifted_table(table: TableMotion, t: np.ndarray, skew: float) -> TableMotion
     if not table.ramps:
         return replace(table, motion=shifted_motion(table.motion, skew))
     ramps = tuple((r[0] + skew, *r[1:]) for r in table.ramps)
-    return replace(table, ramps=ramps, motion=step_pulse_motion(t, ramps, table.lag))
+    return replace(table, ramps=ramps, motion=step_pulse_motion(t, ramps, table.lag,
+                                                                    table.shape))
 
 
 def skew_columns(fit: OutputErrorFit, runs: list[RunData]) -> np.ndarray:
@@ -86,5 +88,4 @@ def skew_step(fit: OutputErrorFit, runs: list[RunData]
 def with_skew_share(fit: OutputErrorFit, cov_skew: np.ndarray, G: np.ndarray
                     ) -> OutputErrorFit:
     """`fit` with the skews' uncertainty added to the constants' covariance."""
-    cov = fit.covariance + (G @ cov_skew @ G.T) * np.outer(fit.values, fit.values)
-    return replace(fit, covariance=cov, std=np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    return with_log_covariance(fit, G @ cov_skew @ G.T)

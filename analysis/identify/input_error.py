@@ -26,7 +26,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from analysis.identify.output_error import OutputErrorFit, RunData, gram_inverse
+from analysis.identify.output_error import (
+    OutputErrorFit,
+    RunData,
+    gram_inverse,
+    with_log_covariance,
+)
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import RunSetup, simulate_runs
 from analysis.table_motion import (
@@ -49,7 +54,8 @@ def _params(table: TableMotion) -> np.ndarray:
 
 def _motion(t: np.ndarray, table: TableMotion, p: np.ndarray, tied: np.ndarray):
     """The table motion of parameter vector p (the estimate's own form: lagged or not)."""
-    return step_pulse_motion(t, params_ramps(p, tied), p[-1] if table.lag > 0 else 0.0)
+    return step_pulse_motion(t, params_ramps(p, tied), p[-1] if table.lag > 0 else 0.0,
+                             table.shape)
 
 
 def refine_table(t: np.ndarray, u: np.ndarray, table: TableMotion) -> TableMotion:
@@ -66,9 +72,10 @@ def refine_table(t: np.ndarray, u: np.ndarray, table: TableMotion) -> TableMotio
     if not table.ramps:
         return table
     free = table.lag > 0
-    ramps, lag = refine_step_pulse(t, u, table.ramps, table.lag, free_lag=free)
-    motion = step_pulse_motion(t, ramps, lag)
-    rms = float(np.sqrt(np.mean((step_pulse_value(t, ramps, lag) - u) ** 2)))
+    ramps, lag = refine_step_pulse(t, u, table.ramps, table.lag, free_lag=free,
+                                   shape=table.shape)
+    motion = step_pulse_motion(t, ramps, lag, table.shape)
+    rms = float(np.sqrt(np.mean((step_pulse_value(t, ramps, lag, table.shape) - u) ** 2)))
     return replace(table, motion=motion, ramps=tuple(ramps), lag=lag,
                    residual_over_noise=rms / max(table.sigma, 1e-300))
 
@@ -131,13 +138,12 @@ def with_input_uncertainty(fit: OutputErrorFit, runs: Sequence[RunData],
         sensitivities = input_sensitivities(fit.model, runs, tables)
     J = fit.jacobian
     info_inv = gram_inverse(J)
-    cov_log = fit.covariance / np.outer(fit.values, fit.values)
+    share = np.zeros((J.shape[1], J.shape[1]))
     start = 0
     for run, (Jx, Cp) in zip(runs, sensitivities):
         rows = slice(start, start + run.t.size)
         G = -info_inv @ (J[rows].T @ Jx)  # how the constants follow an input error
-        cov_log = cov_log + G @ Cp @ G.T
+        share += G @ Cp @ G.T
         start += run.t.size
-    cov = cov_log * np.outer(fit.values, fit.values)
-    return replace(fit, covariance=cov, std=np.sqrt(np.diag(cov)), input_covariance=True,
-                   input_sensitivity=tuple(sensitivities))
+    return with_log_covariance(fit, share, input_covariance=True,
+                               input_sensitivity=tuple(sensitivities))

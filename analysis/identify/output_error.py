@@ -21,7 +21,7 @@ covariance is σ²(JᵀJ)⁻¹ mapped back by the delta method.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -258,6 +258,18 @@ def slice_residuals(model: IsolatorModel, runs: Sequence[RunData], name: str,
 HAC_LAGS = 200  # samples (0.2 s at 1 kHz): a ramp's length, the scale of the rig's model error
 
 
+def bartlett_lags(n: int, max_lag: int = HAC_LAGS):
+    """(lag, weight) of the Bartlett window, lags 1..max_lag within n samples."""
+    return ((lag, 1.0 - lag / (max_lag + 1)) for lag in range(1, min(max_lag, n - 1) + 1))
+
+
+def with_log_covariance(fit: OutputErrorFit, extra: np.ndarray, **changes) -> OutputErrorFit:
+    """`fit` with `extra` (a covariance of the log constants: another source's share)
+    added to its covariance, std recomputed; `changes` as `dataclasses.replace`."""
+    cov = fit.covariance + extra * np.outer(fit.values, fit.values)
+    return replace(fit, covariance=cov, std=np.sqrt(np.maximum(np.diag(cov), 0.0)), **changes)
+
+
 def correlated_std_factor(J: np.ndarray, r: np.ndarray, inverse: np.ndarray,
                           white: np.ndarray, max_lag: int = HAC_LAGS) -> np.ndarray:
     """Per constant, how much the residual's autocorrelation widens its standard error
@@ -273,9 +285,9 @@ def correlated_std_factor(J: np.ndarray, r: np.ndarray, inverse: np.ndarray,
     """
     Jr = J * r[:, None]
     meat = Jr.T @ Jr
-    for lag in range(1, min(max_lag, r.size - 1) + 1):
+    for lag, w in bartlett_lags(r.size, max_lag):
         g = Jr[lag:].T @ Jr[:-lag]
-        meat += (1.0 - lag / (max_lag + 1)) * (g + g.T)
+        meat += w * (g + g.T)
     sandwich = np.diag(inverse @ meat @ inverse)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(white > 0, sandwich / white, 1.0)
@@ -283,7 +295,7 @@ def correlated_std_factor(J: np.ndarray, r: np.ndarray, inverse: np.ndarray,
 
 
 def correlated_noise_factor(residual: np.ndarray, direction: np.ndarray,
-                            sizes: Sequence[int], max_lag: int = 200) -> float:
+                            sizes: Sequence[int], max_lag: int = HAC_LAGS) -> float:
     """How much more the residual's noise moves a χ² comparison along `direction` than
     white noise of unit variance would: dᵀΣd / dᵀd, Σ the residual's autocovariance
     (Bartlett window to `max_lag` samples, per run), at least 1.
@@ -299,8 +311,7 @@ def correlated_noise_factor(residual: np.ndarray, direction: np.ndarray,
         r, d = residual[start:start + n], direction[start:start + n]
         start += n
         num += float(r @ r) / n * float(d @ d)
-        for lag in range(1, min(max_lag, n - 1) + 1):
-            w = 1.0 - lag / (max_lag + 1)
+        for lag, w in bartlett_lags(n, max_lag):
             gamma = float(r[lag:] @ r[:-lag]) / n
             num += 2.0 * w * gamma * float(d[lag:] @ d[:-lag])
         den += float(d @ d)

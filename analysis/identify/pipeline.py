@@ -281,13 +281,16 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
     skew = None
     if skew_limit > 0:
         progress("output error: the table channel's time offset")
-        fit, prepared, offset = _fit_skew(fit, tuple(prepared), skew_limit, progress)
+        fit, prepared, offset, last = _fit_skew(fit, tuple(prepared), skew_limit)
         runs = [p.oe for p in prepared]
     fit, held = _settle_nonsmooth(fit, runs, held, progress)
     fit, held = _hold_loose(fit, start, runs, held, progress)
     fit = with_input_uncertainty(fit, runs, [p.table for p in prepared])
     if skew_limit > 0:
-        _, cov, G = skew_step(fit, runs)
+        # the last step's J_s holds where the constants have not moved since (only the
+        # covariance has): the Jacobian and residual are the same arrays
+        same = last is not None and last[0] is fit.jacobian
+        _, cov, G = last[1] if same else skew_step(fit, runs)
         fit = with_skew_share(fit, cov, G)
         skew = {p.run.name: (float(s), float(np.sqrt(cov[k, k])))
                 for k, (p, s) in enumerate(zip(prepared, offset))}
@@ -300,7 +303,7 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
 
 # residual / noise: a right model fits at 1.0 ± 0.02 (Monte Carlo), a wrong valley of
 # k1, k2, α at 5–20 (measured: 2 of 22 noise draws from the equation-error optimum)
-RETRY_LEVEL = 2.0
+RETRY_LEVEL = 1.2
 FLAT_PROFILE = 1.1  # σ² within 10 % of its minimum: equation error cannot choose α there
 DISTINCT_ALPHA = 1.5  # a start this factor or more from the last one's α
 
@@ -333,20 +336,24 @@ SKEW_ITERATIONS = 4
 SKEW_CONVERGED = 0.25  # standard errors: a further step smaller than this is not taken
 
 
-def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: float,
-              progress: Progress) -> tuple[OutputErrorFit, tuple[PreparedRun, ...], np.ndarray]:
+def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: float):
     """Gauss–Newton on the runs' skews with the constants (`channel_skew.skew_step`),
-    each step's shifts applied to the runs and the constants refitted, within ±limit."""
-    offset = np.zeros(len(prepared))
+    each step's shifts applied to the runs and the constants refitted, within ±limit.
+
+    Returns the fit, the shifted runs, the offsets (s) and, when the last step was
+    computed at the returned fit, (its Jacobian, that step) for reuse; else None.
+    """
+    offset, last = np.zeros(len(prepared)), None
     for _ in range(SKEW_ITERATIONS):
-        step, cov, _ = skew_step(fit, [p.oe for p in prepared])
+        last = (fit.jacobian, skew_step(fit, [p.oe for p in prepared]))
+        step, cov, _ = last[1]
         new = np.clip(offset + step, -limit, limit)
         if np.all(np.abs(new - offset) <= SKEW_CONVERGED * np.sqrt(np.diag(cov))):
             break
         prepared = tuple(shift_input(p, float(d)) for p, d in zip(prepared, new - offset))
         offset = new
-        fit = refine(fit.model, [p.oe for p in prepared], fit.names)
-    return fit, prepared, offset
+        fit, last = refine(fit.model, [p.oe for p in prepared], fit.names), None
+    return fit, prepared, offset, last
 
 
 def shift_input(p: PreparedRun, skew: float) -> PreparedRun:

@@ -208,7 +208,7 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     start = np.array([h.value(n) for n in names]) / scales
     lo = np.array([b[0] for b in bounds]) / scales
     hi = np.array([b[1] for b in bounds]) / scales
-    start = np.clip(start, lo, hi)
+    start = np.clip(np.nan_to_num(start), lo, hi)
     evaluator = _Evaluator(h, runs[:last], names, scales, use)
     sol = least_squares(evaluator.residual, start, jac=evaluator.jacobian,
                         bounds=(lo, hi), method="trf", max_nfev=max_nfev)
@@ -324,12 +324,17 @@ def score(fit: Fit, runs: Sequence[RunData], candidate_h: Hypothesis, parameter:
     """Lagrange-multiplier test of `parameter` (zero in `candidate_h`) against `fit`."""
     n_runs = len(fit.residuals)
     pred = predict(candidate_h, runs[:n_runs], (parameter,), np.array([[0.0], [typical]]))
-    col = np.concatenate([(p[1] - p[0]) / run.sigma_x for p, run in zip(pred, runs)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        col = np.concatenate([(p[1] - p[0]) / run.sigma_x for p, run in zip(pred, runs)])
     r = np.concatenate(fit.residuals)
     J = fit.jacobian
+    if not np.all(np.isfinite(col)):
+        # the typical size makes the model unstable (damping driven negative): no
+        # linearisation at zero to test, and a NaN start would stop the refit
+        return Score(parameter, 0.0, 0.0, 0.0)
     proj = col - J @ np.linalg.lstsq(J, col, rcond=None)[0]
     denom = float(proj @ proj)
-    if denom <= 0.0:
+    if not denom > 0.0:
         return Score(parameter, 0.0, 0.0, 0.0)
     step = -float(proj @ r) / denom  # in units of `typical`
     if sign and np.sign(step) != sign:

@@ -1,0 +1,185 @@
+"""The loop on data it has never seen, through the command a user runs.
+
+    python bench/loop_unseen.py [--quick] [--seeds N] [--jobs J] [--no-peers] [--out FILE.json]
+
+Campaigns come from `bench/unseen/generator.py`, which shares no code or constants
+with the analysis (its own Eq 10 integrator, ramp shapes, effect shapes and sizes,
+constants drawn ±30 % around Table 1, noise 0.5–4× the rig's). Each campaign is
+written as A.csv, B.csv, C.csv (t, u, x in m) and identified by
+
+    analysis fit A.csv B.csv C.csv --mass 2721.55 --json out.json
+
+in a subprocess, started from nothing the generator knows: the product's path.
+Its `effects_added` is scored against the generator's truth:
+
+- exact: the named set is the true set (nothing named on a clean campaign);
+- first right: the first effect named is one of the true ones;
+- wrong: the first effect named is not one of them;
+- missed: an effect was present and nothing was named;
+- false positive: something was named on a clean campaign (or for a lagged servo,
+  which is the table's motion, not the isolator's).
+
+Also the residual after over the noise where the effect is one of the library's,
+how often "unexplained structure" is said, and the wall time per campaign (p50, p90).
+The peers of `bench/unseen/peers.py` (a stepwise equation-error fit with BIC, and
+PySINDy with a dead-band-gated library) are run on the same campaigns as the baseline.
+
+Full run: every effect × N seeds (default 5), clean × 2N, and the pairs below × 2
+seeds. `--quick`: every effect and clean, one seed each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.unseen import peers  # pysindy is imported only when its peer runs
+from bench.unseen.generator import MASS, make_campaign, write_campaign
+from bench.unseen.peers import EFFECT_NAMES as PEER_NAMES
+
+# generator effect -> the product's vocabulary; a lagged servo is the table's own motion:
+# the isolator model lacks nothing
+EFFECT_NAMES = {**PEER_NAMES, "servo_lag": None}
+PAIRS = (("coulomb", "hardening"), ("orifice", "force_offset"), ("sensor_delay", "preload"),
+         ("asym_stiffness", "thermal"), ("bouc_wen", "sensor_gain"), ("asym_damping", "coulomb"))
+TIMEOUT = 600.0  # s per campaign: past it the campaign counts as missed
+
+
+def campaigns(quick: bool, seeds: int) -> list[tuple[int, tuple[str, ...]]]:
+    """(seed, effects) of every campaign; seeds differ per effect so plants differ too."""
+    out: list[tuple[int, tuple[str, ...]]] = []
+    n = 1 if quick else seeds
+    for i, e in enumerate(EFFECT_NAMES):
+        out += [(100 * (i + 1) + s, (e,)) for s in range(1, n + 1)]
+    out += [(s, ()) for s in range(1, (1 if quick else 2 * seeds) + 1)]
+    if not quick:
+        for i, pair in enumerate(PAIRS):
+            out += [(5000 + 100 * i + s, pair) for s in (1, 2)]
+    return out
+
+
+def truth_names(effects: tuple[str, ...]) -> list[str]:
+    return [n for e in effects if (n := EFFECT_NAMES[e])]
+
+
+def run_product(seed: int, effects: tuple[str, ...], work: Path) -> dict:
+    """`analysis fit` on one campaign's CSV files: named effects, residuals, wall time."""
+    c = make_campaign(seed, effects)
+    d = work / f"{seed}-{'+'.join(effects) or 'clean'}"
+    write_campaign(c, d)
+    files = [str(d / f"{r}.csv") for r in "ABC"]
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(["analysis", "fit", *files, "--mass", str(MASS),
+                               "--json", str(d / "out.json")], check=False, capture_output=True,
+                              text=True, timeout=TIMEOUT,
+                              env={**os.environ, "OMP_NUM_THREADS": "1"})
+        wall = time.perf_counter() - t0
+    except subprocess.TimeoutExpired:
+        return {"named": [], "wall": TIMEOUT, "error": "timeout"}
+    if proc.returncode != 0:
+        return {"named": [], "wall": wall, "error": proc.stderr.strip().splitlines()[-1:]}
+    out = json.loads((d / "out.json").read_text())
+    return {"named": list(out.get("effects_added", [])), "wall": wall,
+            "residual_after": out.get("residual_after", {}).get("residual_over_noise"),
+            "residual_before": out.get("residual_before", {}).get("residual_over_noise"),
+            "unexplained": bool(out.get("unexplained", {}).get("value", False))}
+
+
+def run_peer(name: str, seed: int, effects: tuple[str, ...]) -> dict:
+    c = make_campaign(seed, effects)
+    t0 = time.perf_counter()
+    named = getattr(peers, name)(c.runs, MASS)
+    return {"named": list(named), "wall": time.perf_counter() - t0}
+
+
+def score(rows: list[dict]) -> dict:
+    """Counts of the classes above, and the residual and wall-time figures."""
+    out = {"campaigns": len(rows), "exact": 0, "first_right": 0, "wrong": 0, "missed": 0,
+           "false_positive": 0, "clean": 0, "with_effect": 0}
+    resid, walls, unexplained = [], [], 0
+    for r in rows:
+        truth, named = set(r["truth"]), r["named"]
+        out["exact"] += set(named) == truth
+        walls.append(r["wall"])
+        unexplained += bool(r.get("unexplained"))
+        if not truth:
+            out["clean"] += 1
+            out["false_positive"] += bool(named)
+            continue
+        out["with_effect"] += 1
+        if not named:
+            out["missed"] += 1
+        elif named[0] in truth:
+            out["first_right"] += 1
+        else:
+            out["wrong"] += 1
+        if r.get("residual_after") is not None:
+            resid.append(r["residual_after"])
+    out["residual_after_p50"] = float(np.median(resid)) if resid else None
+    out["residual_after_max"] = float(np.max(resid)) if resid else None
+    out["unexplained"] = unexplained
+    out["wall_p50_s"] = float(np.median(walls))
+    out["wall_p90_s"] = float(np.percentile(walls, 90))
+    return out
+
+
+def table(results: dict[str, dict]) -> str:
+    head = ("| method | exact | first right | wrong | missed | false positive (clean) | "
+            "residual after / noise p50 (max) | wall p50 / p90 |")
+    lines = [head, "|" + "---|" * 8]
+    for name, s in results.items():
+        res = ("" if s.get("residual_after_p50") is None else
+               f"{s['residual_after_p50']:.2f} ({s['residual_after_max']:.2f})")
+        lines.append(f"| {name} | {s['exact']}/{s['campaigns']} | {s['first_right']}/"
+                     f"{s['with_effect']} | {s['wrong']} | {s['missed']} | "
+                     f"{s['false_positive']}/{s['clean']} | {res} | "
+                     f"{s['wall_p50_s']:.1f} s / {s['wall_p90_s']:.1f} s |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="one seed of every effect and clean")
+    ap.add_argument("--seeds", type=int, default=5, help="seeds per effect (default 5)")
+    ap.add_argument("--jobs", type=int, default=2, help="campaigns identified at once")
+    ap.add_argument("--no-peers", action="store_true", help="skip the peer baselines")
+    ap.add_argument("--out", type=Path, help="write every row and the scores as JSON")
+    a = ap.parse_args(argv)
+    todo = campaigns(a.quick, a.seeds)
+    print(f"{len(todo)} campaigns from bench/unseen/generator.py, {a.jobs} at a time")
+    rows: dict[str, list[dict]] = {"analysis fit": []}
+    with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(a.jobs) as pool:
+        futures = [(seed, eff, pool.submit(run_product, seed, eff, Path(tmp)))
+                   for seed, eff in todo]
+        for k, (seed, eff, f) in enumerate(futures, 1):
+            r = {"seed": seed, "effects": list(eff), "truth": truth_names(eff), **f.result()}
+            rows["analysis fit"].append(r)
+            print(f"[{k}/{len(todo)}] seed {seed} {'+'.join(eff) or 'clean'}: named "
+                  f"{r['named'] or 'nothing'}, residual {r.get('residual_after') or 0:.2f} x "
+                  f"noise, {r['wall']:.1f} s" + (f" ({r['error']})" if "error" in r else ""),
+                  flush=True)
+    if not a.no_peers:
+        for peer in ("stepwise_bic", "sindy_gated"):
+            rows[peer] = [{"seed": s, "effects": list(e), "truth": truth_names(e),
+                           **run_peer(peer, s, e)} for s, e in todo]
+    results = {name: score(r) for name, r in rows.items()}
+    print(table(results))
+    if a.out:
+        a.out.write_text(json.dumps({"scores": results, "rows": rows}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
