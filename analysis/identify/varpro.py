@@ -50,13 +50,13 @@ class Data:
     xdd: np.ndarray
 
 
-def _cost(model: IsolatorModel, data: Data, free: Sequence[str], values: dict[str, float]
-          ) -> tuple[float, LinearFit, IsolatorModel]:
+def _cost(model: IsolatorModel, data: Data, free: Sequence[str], values: dict[str, float],
+          signed: Sequence[str] = ()) -> tuple[float, LinearFit, IsolatorModel]:
     m = model.with_parameters(**values)
     fit = fit_coefficients(m, data.z, data.zd, data.xdd, free=free)
     # Eq 10's coefficients are all positive (springs and dampers); a negative one means
     # two columns have become look-alikes (tanh(αz) ≈ αz for small α) and cancel
-    if np.any(fit.values <= 0):
+    if np.any((fit.values <= 0) & ~np.isin(list(fit.names), list(signed))):
         return np.inf, fit, m
     return fit.sigma2, fit, m
 
@@ -105,8 +105,8 @@ class Gram:
                 self.columns.append(term_column(m, key[0], self.data.z, self.data.zd))
         return [self.ids[key] for key in keys]
 
-    def sigma2_many(self, free: Sequence[str], points: Sequence[dict[str, float]]
-                    ) -> np.ndarray:
+    def sigma2_many(self, free: Sequence[str], points: Sequence[dict[str, float]],
+                    signed: Sequence[str] = ()) -> np.ndarray:
         """`sigma2` at many points at once (the grid), each ≤ 1e-12 relative of it.
 
         Every dot product comes from one matrix product of all the columns, and
@@ -136,11 +136,14 @@ class Gram:
             return np.array([self.sigma2(free, v) for v in points])
         rr = np.maximum(yy + np.sum(k * (b / scale), axis=1), 0.0)
         out = rr / (self.data.z.size - fi.shape[1])
-        out[dead | np.any(k <= 0, axis=1)] = np.inf
+        positive = np.array([t.name not in signed for t in terms])[is_free]
+        out[dead | np.any((k <= 0) & positive, axis=1)] = np.inf
         return out
 
-    def sigma2(self, free: Sequence[str], values: dict[str, float]) -> float:
-        """Equation-error σ² (N²) at these shape constants; ∞ where a coefficient is ≤ 0."""
+    def sigma2(self, free: Sequence[str], values: dict[str, float],
+               signed: Sequence[str] = ()) -> float:
+        """Equation-error σ² (N²) at these shape constants; ∞ where a coefficient is ≤ 0
+        (but those named in `signed`: an effect either sign of which is physical)."""
         ids = self._ids(values)
         terms = self.model.terms
         cols = [i for i, t in zip(ids, terms) if t.name in free]
@@ -158,7 +161,8 @@ class Gram:
             k = np.linalg.solve(G / np.outer(scale, scale), -b / scale)
         except np.linalg.LinAlgError:
             return np.inf
-        if np.any(k <= 0):  # as `_cost`: a negative coefficient is a look-alike, not physics
+        positive = np.array([t.name not in signed for t in terms if t.name in free])
+        if np.any((k <= 0) & positive):  # as `_cost`: a look-alike, not physics
             return np.inf
         rr = max(yy + float(k @ (b / scale)), 0.0)
         return rr / (self.data.z.size - len(cols))
@@ -166,8 +170,10 @@ class Gram:
 
 def project(model: IsolatorModel, data: Data, shape_names: Sequence[str] = ("alpha", "beta",
             "delta"), free: Sequence[str] | None = None, grid: int = 9,
-            grid_delta: int = 9) -> Projection:
-    """Minimise σ² over the shape constants `shape_names`; coefficients solved inside."""
+            grid_delta: int = 9, signed: Sequence[str] = ()) -> Projection:
+    """Minimise σ² over the shape constants `shape_names`; coefficients solved inside.
+
+    Every free coefficient must come out positive but those in `signed`."""
     names = [n for n in shape_names if n in model.parameters()]
     free = [t.name for t in model.terms if t.coef != 0.0] if free is None else list(free)
     evaluations = 0
@@ -176,7 +182,7 @@ def project(model: IsolatorModel, data: Data, shape_names: Sequence[str] = ("alp
     def cost(values: dict[str, float]) -> float:
         nonlocal evaluations
         evaluations += 1
-        return gram.sigma2(free, values)
+        return gram.sigma2(free, values, signed)
 
     a_grid = np.geomspace(*BOUNDS["alpha"], grid)
     b_grid = np.geomspace(*BOUNDS["beta"], grid)
@@ -192,7 +198,7 @@ def project(model: IsolatorModel, data: Data, shape_names: Sequence[str] = ("alp
                 cells.append((i, j))
                 points.append({k: val for k, val in (("alpha", a), ("beta", b), ("delta", d))
                                if val is not None and k in names})
-    costs = gram.sigma2_many(free, points)
+    costs = gram.sigma2_many(free, points, signed)
     evaluations += len(points)
     for (i, j), v, c in zip(cells, points, costs.tolist()):
         profile[i, j] = min(profile[i, j], c)
@@ -208,7 +214,7 @@ def project(model: IsolatorModel, data: Data, shape_names: Sequence[str] = ("alp
                        bounds=[(0.0, 1.0)] * len(names),
                        options={"xatol": 1e-4, "fatol": 1e-10 * best[0], "maxiter": 400})
         shapes = _from_unit(res.x, names) if res.fun <= best[0] else best[1]
-    _, fit, m = _cost(model, data, free, shapes)
+    _, fit, m = _cost(model, data, free, shapes, signed)
     if best[1]:  # else the coefficients came out negative: keep the start's
         m = m.with_parameters(**fit.as_dict())
     return Projection(shapes=shapes, fit=fit, model=m, profile_alpha=a_grid, profile_beta=b_grid,

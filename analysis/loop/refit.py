@@ -266,8 +266,10 @@ class _Evaluator:
                 res = [(pred[k][0] - self.runs[k].x) / self.runs[k].sigma_x for k in self.use]
             # a trial that makes the model unstable (damping driven negative) must look
             # bad, not stop the search
-            r = np.nan_to_num(np.concatenate(res), nan=UNSTABLE, posinf=UNSTABLE,
-                              neginf=-UNSTABLE)
+            # (a run that diverged to a huge but finite value is as bad, and its square
+            # must not overflow the solver's sums)
+            r = np.clip(np.nan_to_num(np.concatenate(res), nan=UNSTABLE, posinf=UNSTABLE,
+                                      neginf=-UNSTABLE), -UNSTABLE, UNSTABLE)
             if len(self._rows) >= 4:
                 self._rows.pop(next(iter(self._rows)))
             self._rows[key] = (pred, r)
@@ -286,7 +288,10 @@ class _Evaluator:
                         if self.ahead < len(self.names) else [p[:0] for p in ahead])
                 jac = [((np.vstack([ahead[k][1:], rest[k]]) - ahead[k][0])
                         / self.runs[k].sigma_x / steps[:, None]).T for k in self.use]
-            self._jac = (key, np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0))
+            J = np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0)
+            # a perturbed row that diverged says nothing about the slope
+            J[np.abs(J) > UNSTABLE / FD_STEP] = 0.0
+            self._jac = (key, J)
         return self._jac[1]
 
 

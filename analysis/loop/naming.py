@@ -1,0 +1,245 @@
+"""Which effect the data ask for next: equation error with a matched filter, judged by BIC.
+
+Output error tells a right model from a wrong one but is slow and many-valleyed;
+naming needs a fast look at every candidate from the same start. This is that
+look, the report's appendix A with one column per candidate:
+
+- the target is the mass force m ẍ, its ẍ a Savitzky–Golay second derivative of
+  the measured x (0.05 s, cubic). That derivative is a smoothing kernel H applied
+  to the true ẍ (H, the double running sum of the SG kernel, has unit sum), so
+  every regressor φ(z, ż) is filtered by the same H: the spring force's jump at
+  the dead band's edge is smeared in the regressor exactly as in the target, and
+  no sample near an edge is misfit;
+- z and ż come from a shorter smoothing (0.021 s) of x less the estimated table
+  motion, and only samples in motion (|ż| > 5 mm/s, a window away from any rest:
+  static friction is in no column) are used, one per half window — the filtered
+  residual is correlated over about that, so the rows are near independent and
+  BIC's n means something;
+- the dead band δ is searched again with each candidate (a large dry friction
+  is c2 tanh(βż) when δ → 0, which is where a base fit without it goes);
+- a sensor delay d shows in the force as −d (F_z u̇ + F_ż ü), a mass-sensor gain
+  g as g (F_z x + F_ż ẋ), both from the current model's F: one column each.
+
+Forward selection: the candidate whose column lowers BIC = n ln(RSS/n) + p ln n
+the most is next, if it lowers it by more than `BIC_MARGIN`. The loop refits by
+output error only what this names, in its order.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import convolve1d, minimum_filter1d
+from scipy.signal import savgol_coeffs, savgol_filter
+
+from analysis.identify.output_error import RunData
+from analysis.identify.regressors import campaign_regressors
+from analysis.loop.candidates import CANDIDATES, SENSOR_DELAY, SENSOR_GAIN
+from analysis.model.isolator import IsolatorModel
+
+ACCELERATION_WINDOW = 0.051  # s: the SG second derivative of x (cubic)
+STATE_WINDOW = 0.021  # s: z and ż (cubic): short enough to keep the dead band's edges
+MOVING = 5e-3  # m/s: slower, the mass may be held by static friction (in no column)
+# BIC must fall by more than this: "very strong" evidence on Kass & Raftery's scale, and
+# room for what no column holds even on a right model (static friction, the smoothing)
+BIC_MARGIN = 10.0
+DELTA_GRID = np.linspace(0.0, 0.04, 41)  # m: the dead band searched with each candidate
+LINEAR = ("k1", "k2", "c1", "c2")
+
+
+@dataclass(frozen=True)
+class Naming:
+    """The candidates the equation error selects, in order, with their BIC falls."""
+
+    order: tuple[str, ...]
+    gains: tuple[float, ...]  # BIC fall of each, in order
+    first: dict[str, float]  # every candidate's BIC fall at the first step (evidence)
+    delta: float  # m, the dead band of the last selection
+    rows: int  # samples the selection used
+
+
+@dataclass(frozen=True)
+class _Columns:
+    y: np.ndarray  # filtered, decimated m ẍ
+    fixed: dict[str, np.ndarray]  # columns that do not depend on δ
+    gated: dict[str, np.ndarray]  # (len(deltas), n) columns that do
+    deltas: np.ndarray  # m, the dead bands of the gated columns' rows
+
+
+def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: float = 0.0,
+                 present: Sequence[str] = (), max_effects: int = 4) -> Naming:
+    """Forward selection by BIC over the candidates not `present` (candidate names)."""
+    model = _eq10_shapes(model, runs, sensor_delay)
+    cols = _columns(model, runs, [n for n in CANDIDATES if n not in present], sensor_delay)
+    base = [n for n in cols.fixed if n.startswith("base:")] + \
+        [n for n in cols.gated if n.startswith("base:")]
+    pool = sorted({n.split(":", 1)[1] for n in (*cols.fixed, *cols.gated)
+                   if n.startswith("cand:")})
+    n = cols.y.size
+    chosen: list[str] = []
+    gains: list[float] = []
+    first: dict[str, float] = {}
+    current, delta = _best_bic(cols, base, n)
+    while pool and len(chosen) < max_effects:
+        trial = {c: _best_bic(cols, base + [f"cand:{x}" for x in chosen + [c]], n)
+                 for c in pool}
+        falls = {c: current - b for c, (b, _) in trial.items()}
+        if not chosen:
+            first = falls
+        best = max(falls, key=lambda c: (falls[c], c))  # ties by name: deterministic
+        if falls[best] <= BIC_MARGIN:
+            break
+        chosen.append(best)
+        gains.append(falls[best])
+        current, delta = trial[best]
+        pool.remove(best)
+    return Naming(tuple(chosen), tuple(gains), first, delta, n)
+
+
+SHAPE_SPAN = np.geomspace(0.25, 4.0, 9)  # α and β searched over this span of the model's
+
+
+def _eq10_shapes(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: float
+                 ) -> IsolatorModel:
+    """The model with α and β searched again by the same equation error, without any
+    candidate: a base fit that has absorbed an effect moves them (a Bouc–Wen loop
+    pushed α and β until a dry friction's column fitted better than its own)."""
+    p = model.parameters()
+    best = (np.inf, model)
+    for a in p["alpha"] * SHAPE_SPAN:
+        for b in p["beta"] * SHAPE_SPAN:
+            m = model.with_parameters(alpha=float(a), beta=float(b))
+            cols = _columns(m, runs, (), sensor_delay, deltas=(m.dead_band,))
+            names = list(cols.fixed) + list(cols.gated)
+            rss = _best_bic(cols, names, cols.y.size)[0]
+            if rss < best[0]:
+                best = (rss, m)
+    return best[1]
+
+
+def _best_bic(cols: _Columns, names: list[str], n: int) -> tuple[float, float]:
+    """(BIC, δ) of the columns `names` with δ searched over the grid."""
+    fixed = np.column_stack([cols.fixed[k] for k in names if k in cols.fixed] or
+                            [np.zeros(n)])
+    gated = [k for k in names if k in cols.gated]
+    p = len(names) + 1  # the coefficients and δ
+    best = (np.inf, 0.0)
+    for i, d in enumerate(cols.deltas):
+        A = np.column_stack([fixed] + [cols.gated[k][i] for k in gated])
+        coef, *_ = np.linalg.lstsq(A, cols.y, rcond=None)
+        rss = float(np.sum((cols.y - A @ coef) ** 2))
+        bic = n * np.log(max(rss, 1e-300) / n) + p * np.log(n)
+        if bic < best[0]:
+            best = (bic, float(d))
+    return best
+
+
+def _odd(seconds: float, dt: float) -> int:
+    k = max(round(seconds / dt), 5)
+    return k + 1 - k % 2
+
+
+def _matched_kernel(window: int, dt: float) -> np.ndarray:
+    """H with SG''(x) = H ∗ ẍ: the double running sum of the SG kernel (unit sum)."""
+    c = savgol_coeffs(window, 3, deriv=2, delta=dt)
+    return (np.cumsum(np.cumsum(c)) * dt * dt)[:-2]
+
+
+def _columns(model: IsolatorModel, runs: Sequence[RunData], candidates: Sequence[str],
+             sensor_delay: float, deltas: Sequence[float] = tuple(DELTA_GRID)) -> _Columns:
+    """Every column on the moving samples of every run, filtered and decimated."""
+    dt = float(runs[0].t[1] - runs[0].t[0])
+    wa, ws = _odd(ACCELERATION_WINDOW, dt), _odd(STATE_WINDOW, dt)
+    H = _matched_kernel(wa, dt)
+    stride = max(wa // 2, 1)
+    per_run = []
+    for r in runs:
+        t = r.t - sensor_delay if sensor_delay else r.t
+        u, ud, udd = (r.motion(t, k) for k in (0, 1, 2))
+        xs = savgol_filter(r.x, ws, 3, mode="nearest")
+        xd = savgol_filter(r.x, ws, 3, deriv=1, delta=dt, mode="nearest")
+        y = model.mass * savgol_filter(r.x, wa, 3, deriv=2, delta=dt, mode="nearest")
+        z, zd = xs - u, xd - ud
+        moving = minimum_filter1d((np.abs(zd) > MOVING).astype(np.uint8), wa) > 0
+        moving[:wa] = moving[-wa:] = False
+        keep = np.flatnonzero(moving)[::stride]
+        per_run.append((z, zd, xs, xd, ud, udd, y, keep))
+    models = {}  # the model with one candidate added, per candidate
+    for name in candidates:
+        c = CANDIDATES[name]
+        if c.term_kind:
+            m, param = c.add_to(model)
+            models[name] = (m, param)
+
+    def stack(build) -> np.ndarray:
+        return np.concatenate([convolve1d(col, H, mode="nearest")[keep]
+                               for col, (*_, keep) in zip(build(), per_run)])
+
+    y = np.concatenate([pr[6][pr[7]] for pr in per_run])
+    fixed: dict[str, np.ndarray] = {}
+    gated: dict[str, list[np.ndarray]] = {}
+    zs, zds = [pr[0] for pr in per_run], [pr[1] for pr in per_run]
+    for d in deltas:
+        # the model's own terms and every force candidate's, at this dead band
+        everything = model
+        for name in models:
+            everything = CANDIDATES[name].add_to(everything)[0]
+        everything = everything.with_parameters(delta=max(float(d), 1e-9))
+        Z = campaign_regressors(everything, zs, zds, dt)
+        gated_terms = everything.structure()[1]
+        blocks = np.cumsum([0] + [len(z) for z in zs])
+        for j, term in enumerate(everything.terms):
+            key = _key(model, term.name, models)
+            if key is None:
+                continue
+            col = np.concatenate([convolve1d(Z[a:b, j], H, mode="nearest")[pr[7]]
+                                  for a, b, pr in zip(blocks[:-1], blocks[1:], per_run)])
+            if not gated_terms[j]:
+                fixed.setdefault(key, col)
+            else:
+                gated.setdefault(key, []).append(col)
+    if SENSOR_DELAY in candidates or SENSOR_GAIN in candidates:
+        Fz, Fzd = _force_slopes(model, zs, zds, dt)
+        if SENSOR_DELAY in candidates:
+            fixed[f"cand:{SENSOR_DELAY}"] = stack(
+                lambda: [-(a * pr[4] + b * pr[5]) for a, b, pr in zip(Fz, Fzd, per_run)])
+        if SENSOR_GAIN in candidates:
+            fixed[f"cand:{SENSOR_GAIN}"] = stack(
+                lambda: [a * pr[2] + b * pr[3] for a, b, pr in zip(Fz, Fzd, per_run)])
+    return _Columns(y, fixed, {k: np.array(v) for k, v in gated.items()},
+                    np.asarray(deltas, float))
+
+
+def _key(model: IsolatorModel, term: str, models: dict[str, tuple[IsolatorModel, str]]
+         ) -> str | None:
+    """'base:<term>' for the model's own acting terms, 'cand:<candidate>' for a
+    candidate's, None for a term at zero that no candidate names."""
+    own = {t.name: t for t in model.terms}
+    if term in own and (term in LINEAR or own[term].coef != 0.0):
+        return f"base:{term}"
+    for name, (_, param) in models.items():
+        if param == term:
+            return f"cand:{name}"
+    return None
+
+
+def _force_slopes(model: IsolatorModel, z: Sequence[np.ndarray], zd: Sequence[np.ndarray],
+                  dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """∂F/∂z and ∂F/∂ż of the model's stateless force along each run (central differences)."""
+    coef = np.array([t.coef for t in model.terms])
+    stateless = np.array([not t.shape or t.kind in ("tanh_spring", "tanh_damper")
+                          for t in model.terms])
+    coef = np.where(stateless, coef, 0.0)
+    hz, hv = 1e-4, 1e-3  # m, m/s: below the motion's scale, above rounding
+
+    def force(zz, vv):
+        return campaign_regressors(model, zz, vv, dt) @ coef
+
+    sizes = np.cumsum([0] + [len(v) for v in z])
+    Fz = (force([v + hz for v in z], zd) - force([v - hz for v in z], zd)) / (2 * hz)
+    Fzd = (force(z, [v + hv for v in zd]) - force(z, [v - hv for v in zd])) / (2 * hv)
+    return ([Fz[a:b] for a, b in itertools.pairwise(sizes)],
+            [Fzd[a:b] for a, b in itertools.pairwise(sizes)])
