@@ -46,13 +46,13 @@ from analysis.loop.evidence import Diagnosis, diagnose
 from analysis.loop.naming import BIC_MARGIN, name_effects
 from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit, score
 from analysis.loop.reidentify import (
-    STATELESS,
     Reidentified,
     base_projection,
     moving_data,
     with_candidate,
 )
 from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import kind
 from analysis.table_motion import estimate_table_motion
 
 BASE_FREE = ("k1", "k2", "c1", "c2", "alpha", "beta")
@@ -280,8 +280,7 @@ def _reidentified(h: Hypothesis, runs: Sequence[LoopRun], scores) -> dict[str, R
     """Each force candidate identified by equation error with α, β, δ searched
     (`reidentify`), and under "" the model as it is, identified the same way."""
     if any(r.zd is None or r.xdd is None for r in runs) or any(
-            t.kind not in STATELESS + ("linear_spring", "tanh_spring", "linear_damper",
-                                        "tanh_damper") for t in h.model.terms):
+            kind(t.kind).has_state for t in h.model.terms):
         return {}  # a term with a state (added on an earlier step) is no regressor
     data = moving_data([r.data.x - r.data.motion(r.data.t) for r in runs],
                        [r.zd for r in runs], [r.xdd for r in runs], h.model.stop_velocity)

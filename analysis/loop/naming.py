@@ -36,9 +36,11 @@ from scipy.ndimage import convolve1d, minimum_filter1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from analysis.identify.output_error import RunData
+from analysis.identify.pipeline import LINEAR
 from analysis.identify.regressors import campaign_regressors
 from analysis.loop.candidates import CANDIDATES, SENSOR_DELAY, SENSOR_GAIN
 from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import kind
 
 ACCELERATION_WINDOW = 0.051  # s: the SG second derivative of x (cubic)
 STATE_WINDOW = 0.021  # s: z and ż (cubic): short enough to keep the dead band's edges
@@ -47,7 +49,6 @@ MOVING = 5e-3  # m/s: slower, the mass may be held by static friction (in no col
 # room for what no column holds even on a right model (static friction, the smoothing)
 BIC_MARGIN = 10.0
 DELTA_GRID = np.linspace(0.0, 0.04, 41)  # m: the dead band searched with each candidate
-LINEAR = ("k1", "k2", "c1", "c2")
 
 
 @dataclass(frozen=True)
@@ -72,8 +73,9 @@ class _Columns:
 def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: float = 0.0,
                  present: Sequence[str] = (), max_effects: int = 4) -> Naming:
     """Forward selection by BIC over the candidates not `present` (candidate names)."""
-    model = _eq10_shapes(model, runs, sensor_delay)
-    cols = _columns(model, runs, [n for n in CANDIDATES if n not in present], sensor_delay)
+    samples = _samples(runs, model.mass, sensor_delay)
+    model = _eq10_shapes(model, samples)
+    cols = _columns(model, samples, [n for n in CANDIDATES if n not in present])
     base = [n for n in cols.fixed if n.startswith("base:")] + \
         [n for n in cols.gated if n.startswith("base:")]
     pool = sorted({n.split(":", 1)[1] for n in (*cols.fixed, *cols.gated)
@@ -102,8 +104,7 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
 SHAPE_SPAN = np.geomspace(0.25, 4.0, 9)  # α and β searched over this span of the model's
 
 
-def _eq10_shapes(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: float
-                 ) -> IsolatorModel:
+def _eq10_shapes(model: IsolatorModel, samples: _Samples) -> IsolatorModel:
     """The model with α and β searched again by the same equation error, without any
     candidate: a base fit that has absorbed an effect moves them (a Bouc–Wen loop
     pushed α and β until a dry friction's column fitted better than its own)."""
@@ -112,7 +113,7 @@ def _eq10_shapes(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
     for a in p["alpha"] * SHAPE_SPAN:
         for b in p["beta"] * SHAPE_SPAN:
             m = model.with_parameters(alpha=float(a), beta=float(b))
-            cols = _columns(m, runs, (), sensor_delay, deltas=(m.dead_band,))
+            cols = _columns(m, samples, (), deltas=(m.dead_band,))
             names = list(cols.fixed) + list(cols.gated)
             rss = _best_bic(cols, names, cols.y.size)[0]
             if rss < best[0]:
@@ -148,12 +149,19 @@ def _matched_kernel(window: int, dt: float) -> np.ndarray:
     return (np.cumsum(np.cumsum(c)) * dt * dt)[:-2]
 
 
-def _columns(model: IsolatorModel, runs: Sequence[RunData], candidates: Sequence[str],
-             sensor_delay: float, deltas: Sequence[float] = tuple(DELTA_GRID)) -> _Columns:
-    """Every column on the moving samples of every run, filtered and decimated."""
+@dataclass(frozen=True)
+class _Samples:
+    """Each run's smoothed states, table motion, target and kept rows: what every
+    column is built from, whatever the model's constants."""
+
+    per_run: list[tuple[np.ndarray, ...]]  # (z, ż, x, ẋ, u̇, ü, m ẍ, kept rows)
+    H: np.ndarray  # the matched filter
+    dt: float
+
+
+def _samples(runs: Sequence[RunData], mass: float, sensor_delay: float) -> _Samples:
     dt = float(runs[0].t[1] - runs[0].t[0])
     wa, ws = _odd(ACCELERATION_WINDOW, dt), _odd(STATE_WINDOW, dt)
-    H = _matched_kernel(wa, dt)
     stride = max(wa // 2, 1)
     per_run = []
     for r in runs:
@@ -161,18 +169,25 @@ def _columns(model: IsolatorModel, runs: Sequence[RunData], candidates: Sequence
         u, ud, udd = (r.motion(t, k) for k in (0, 1, 2))
         xs = savgol_filter(r.x, ws, 3, mode="nearest")
         xd = savgol_filter(r.x, ws, 3, deriv=1, delta=dt, mode="nearest")
-        y = model.mass * savgol_filter(r.x, wa, 3, deriv=2, delta=dt, mode="nearest")
+        y = mass * savgol_filter(r.x, wa, 3, deriv=2, delta=dt, mode="nearest")
         z, zd = xs - u, xd - ud
         moving = minimum_filter1d((np.abs(zd) > MOVING).astype(np.uint8), wa) > 0
         moving[:wa] = moving[-wa:] = False
         keep = np.flatnonzero(moving)[::stride]
         per_run.append((z, zd, xs, xd, ud, udd, y, keep))
-    models = {}  # the model with one candidate added, per candidate
-    for name in candidates:
-        c = CANDIDATES[name]
-        if c.term_kind:
-            m, param = c.add_to(model)
-            models[name] = (m, param)
+    return _Samples(per_run, _matched_kernel(wa, dt), dt)
+
+
+def _columns(model: IsolatorModel, samples: _Samples, candidates: Sequence[str],
+             deltas: Sequence[float] = tuple(DELTA_GRID)) -> _Columns:
+    """Every column on the moving samples of every run, filtered and decimated."""
+    per_run, H, dt = samples.per_run, samples.H, samples.dt
+    models = {name: CANDIDATES[name].add_to(model) for name in candidates
+              if CANDIDATES[name].term_kind}  # the model with the candidate, its parameter
+    everything = model  # the model's own terms and every force candidate's
+    for name in models:
+        everything = CANDIDATES[name].add_to(everything)[0]
+    gated_terms = everything.structure()[1]
 
     def stack(build) -> np.ndarray:
         return np.concatenate([convolve1d(col, H, mode="nearest")[keep]
@@ -182,23 +197,18 @@ def _columns(model: IsolatorModel, runs: Sequence[RunData], candidates: Sequence
     fixed: dict[str, np.ndarray] = {}
     gated: dict[str, list[np.ndarray]] = {}
     zs, zds = [pr[0] for pr in per_run], [pr[1] for pr in per_run]
+    blocks = np.cumsum([0] + [len(z) for z in zs])
     for d in deltas:
-        # the model's own terms and every force candidate's, at this dead band
-        everything = model
-        for name in models:
-            everything = CANDIDATES[name].add_to(everything)[0]
-        everything = everything.with_parameters(delta=max(float(d), 1e-9))
-        Z = campaign_regressors(everything, zs, zds, dt)
-        gated_terms = everything.structure()[1]
-        blocks = np.cumsum([0] + [len(z) for z in zs])
+        Z = campaign_regressors(everything.with_parameters(delta=max(float(d), 1e-9)),
+                                zs, zds, dt)
         for j, term in enumerate(everything.terms):
             key = _key(model, term.name, models)
-            if key is None:
-                continue
+            if key is None or (not gated_terms[j] and key in fixed):
+                continue  # (an ungated column is the same at every dead band)
             col = np.concatenate([convolve1d(Z[a:b, j], H, mode="nearest")[pr[7]]
                                   for a, b, pr in zip(blocks[:-1], blocks[1:], per_run)])
             if not gated_terms[j]:
-                fixed.setdefault(key, col)
+                fixed[key] = col
             else:
                 gated.setdefault(key, []).append(col)
     if SENSOR_DELAY in candidates or SENSOR_GAIN in candidates:
@@ -230,8 +240,7 @@ def _force_slopes(model: IsolatorModel, z: Sequence[np.ndarray], zd: Sequence[np
                   dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """∂F/∂z and ∂F/∂ż of the model's stateless force along each run (central differences)."""
     coef = np.array([t.coef for t in model.terms])
-    stateless = np.array([not t.shape or t.kind in ("tanh_spring", "tanh_damper")
-                          for t in model.terms])
+    stateless = np.array([not kind(t.kind).has_state for t in model.terms])
     coef = np.where(stateless, coef, 0.0)
     hz, hv = 1e-4, 1e-3  # m, m/s: below the motion's scale, above rounding
 

@@ -27,13 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from analysis.identify.pipeline import LINEAR
 from analysis.identify.varpro import Data, project
 from analysis.loop.candidates import Candidate
 from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import kind
 
-LINEAR = ("k1", "k2", "c1", "c2")
-STATELESS = ("coulomb", "extension_damper", "quadratic_damper", "cubic_spring",
-             "compression_spring", "preload", "force_offset")
 SHAPES = ("alpha", "beta", "delta")
 
 
@@ -65,7 +64,7 @@ def with_candidate(model: IsolatorModel, c: Candidate, param: str, data: Data
     """The model with the candidate's term, identified by equation error; None where the
     candidate has no regressor of (z, ż) or no shape keeps the springs and dampers
     positive (the projection then stays at its start: nothing was identified)."""
-    if c.term_kind not in STATELESS or param not in model.parameters():
+    if not c.term_kind or kind(c.term_kind).has_state or param not in model.parameters():
         return None
     free = [t.name for t in model.terms if t.name in LINEAR or t.coef != 0.0 or t.name == param]
     signed = _signed(model, free) + ([param] if c.sign == 0 else [])
