@@ -148,6 +148,39 @@ class RunWriter:
         self._gaps.rows.append((channel.encode(), n - 1, n, start_time, end_time, count))
         self._tick(self._gaps)
 
+    def retime(self, channel: str, times: ArrayLike) -> None:
+        """Place every sample of `channel` again: `times` (n,) s, one per row recorded, in
+        order; the channel's gaps move with the samples they lie between. Flushes first.
+
+        For a better clock fit at the end of a run (rig.recorder): a crash before this
+        leaves the first placements, each of which was the best fit at its time.
+        """
+        table = self._channels.get(channel)
+        if table is None:
+            raise ValueError(f"retime of unknown channel {channel!r}")
+        self.flush()
+        new = np.asarray(times, dtype=float)
+        if new.shape != (table.written,):
+            raise ValueError(f"{channel}: {new.shape[0] if new.ndim else 0} times for "
+                             f"{table.written} rows")
+        if table.written == 0:
+            return
+
+        def write() -> None:
+            rows = table.ds[...]
+            rows["time"] = new
+            table.ds[...] = rows
+            table.ds.flush()
+            gaps = self._gaps.ds[...]
+            mine = gaps["channel"] == channel.encode()
+            if mine.any():
+                gaps["start_time"][mine] = new[gaps["start_sample"][mine]]
+                gaps["end_time"][mine] = new[np.minimum(gaps["end_sample"][mine], new.size - 1)]
+                self._gaps.ds[...] = gaps
+                self._gaps.ds.flush()
+
+        self._guarded(write)
+
     def count(self, source: str, kind: str, n: int = 1) -> None:
         """Add `n` to counter `kind` (lost, crc_errors, ...) of `source`; written at each flush."""
         self._counter(source, kind)

@@ -46,6 +46,7 @@ from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
 from analysis.simulate import simulate
 from analysis.table_motion import quintic_hermite
+from sim.hermite import cubic_at, quintic_at
 
 SERVO_TAU = 0.005  # s, first-order lag of a servo-hydraulic actuator (~30 Hz bandwidth)
 DT = 1e-3  # s, plant grid
@@ -69,9 +70,9 @@ class ServoAxis:
     def step(self, target: float, dt: float, tau: float = SERVO_TAU) -> None:
         """Advance one step toward `target` (m): first-order lag, then the rate limit.
 
-        The target moves linearly from the last step's to this one (the controllers
-        interpolate their setpoints), and the lag p' = (r − p)/τ is solved exactly for
-        that ramp. Position and velocity are then continuous across grid points, as
+        The target moves linearly from the last step's to this one (the controller's
+        C² interpolation of its setpoints, sampled every step), and the lag
+        p' = (r − p)/τ is solved exactly for that ramp. Position and velocity are then continuous across grid points, as
         the Hermite the integrator reads needs: holding the target over the step makes
         the velocity jump by Δr/τ at every point, which the cubic turns into a table
         acceleration of hundreds of m/s² (measured: 760 m/s² on run A's 20 m/s² ramp).
@@ -200,9 +201,9 @@ class Plant:
                 return self._u[0], self._x[0]
             w = min(max(i - k, 0.0), 1.0)
             h = self.dt
-            u = _quintic_at(w, h, self._u[k], self._ud[k], self._udd[k],
+            u = quintic_at(w, h, self._u[k], self._ud[k], self._udd[k],
                             self._u[k + 1], self._ud[k + 1], self._udd[k + 1])
-            x = _cubic_at(w, h, self._x[k], self._xd[k], self._x[k + 1], self._xd[k + 1])
+            x = cubic_at(w, h, self._x[k], self._xd[k], self._x[k + 1], self._xd[k + 1])
             return u, x
 
     def extensions(self, t: float) -> np.ndarray:
@@ -252,23 +253,3 @@ def _shifted(c: np.ndarray, a: float) -> np.ndarray:
         out = np.r_[out[1:], 0.0] + a * out
         out[-1] += coef
     return out
-
-
-def _quintic_at(w: float, h: float, p0: float, v0: float, a0: float, p1: float, v1: float,
-                a1: float) -> float:
-    """The quintic Hermite of `_quintic` at the fraction w of a step h; plain floats."""
-    d = p1 - (p0 + v0 * h + 0.5 * a0 * h * h)
-    e = v1 - (v0 + a0 * h)
-    f = a1 - a0
-    s = w * h
-    c3 = (10 * d - 4 * e * h + 0.5 * f * h * h) / h**3
-    c4 = (-15 * d + 7 * e * h - f * h * h) / h**4
-    c5 = (6 * d - 3 * e * h + 0.5 * f * h * h) / h**5
-    return p0 + s * (v0 + s * (0.5 * a0 + s * (c3 + s * (c4 + s * c5))))
-
-
-def _cubic_at(w: float, h: float, p0: float, v0: float, p1: float, v1: float) -> float:
-    """The cubic Hermite through (p, v) at both ends of a step h, at its fraction w."""
-    w2, w3 = w * w, w * w * w
-    return ((2 * w3 - 3 * w2 + 1) * p0 + (w3 - 2 * w2 + w) * h * v0
-            + (-2 * w3 + 3 * w2) * p1 + (w3 - w2) * h * v1)

@@ -48,13 +48,35 @@ def test_every_draw_holds_the_breakaway_force_and_covers_the_truth(seed: int) ->
         assert 0.95 < e.residual_over_noise < 1.08
 
 
-def _late_table(runs, skews):
-    """Runs whose table channel is stamped `skew` s off: u(t) read at t + skew."""
+def _late_table(runs, skews, rates=None):
+    """Runs whose table channel is stamped `skew` s off at mid-run, drifting by `rate`
+    (s/s): u(t) read at t + skew + rate (t − t_mid)."""
     out = []
-    for r, s in zip(runs, skews):
-        u = np.interp(r.t + s, r.t, r.u)
+    for r, s, rate in zip(runs, skews, rates or [0.0] * len(runs)):
+        u = np.interp(r.t + s + rate * (r.t - 0.5 * (r.t[0] + r.t[-1])), r.t, r.u)
         out.append(replace(r, u=u, skew_limit=0.25e-3))
     return out
+
+
+def test_a_skew_that_drifts_within_each_run_is_fitted_offset_and_rate() -> None:
+    """Two device clocks, each fitted from a few seconds of deliveries, disagree on the
+    rate by up to ~40 ppm: 0.2 ms over a 5 s run, which an offset alone leaves in x."""
+    truth = report_model("average")
+    clean = synthetic_runs(truth, noise=0.0, seed=22)
+    rng = np.random.default_rng(22)
+    skews, rates = (-60e-6, 90e-6, -150e-6), (30e-6, -40e-6, 15e-6)
+    runs = [replace(r, u=r.u + SENSOR_NOISE * rng.standard_normal(r.t.size),
+                    x=r.x + SENSOR_NOISE * rng.standard_normal(r.t.size))
+            for r in _late_table(clean, skews, rates)]
+    fit = identify(runs, per_run=False)
+    for (name, (s, e, rate, rate_e)), want_s, want_rate in zip(fit.skew.items(), skews, rates):
+        assert abs(s - want_s) < 4 * e + 2e-6, (name, s, e, want_s)
+        assert abs(rate - want_rate) < 4 * rate_e + 1e-6, (name, rate, rate_e, want_rate)
+        assert rate_e < 10e-6
+    z = _z_scores(fit, truth)
+    assert max(abs(v) for v in z.values()) < Z_MAX, z
+    for e in fit.errors.values():
+        assert e.residual_over_noise < 1.08
 
 
 def test_each_runs_table_channel_skew_is_fitted_and_the_constants_stay_unbiased() -> None:
@@ -69,10 +91,13 @@ def test_each_runs_table_channel_skew_is_fitted_and_the_constants_stay_unbiased(
             for r in _late_table(clean, skews)]
     fit = identify(runs, per_run=False)
     assert fit.skew is not None
-    for (name, (s, e)), want in zip(fit.skew.items(), skews):
+    for (name, (s, e, rate, rate_e)), want in zip(fit.skew.items(), skews):
         # u read at t + skew: the model, driven by u(t − s), needs s = skew
         assert abs(s - want) < 4 * e + 2e-6, (name, s, e, want)
-        assert e < 10e-6  # the runs pin it to a few µs
+        # the runs pin it to ~10 µs at mid-run (the ramps come early, so the offset there
+        # shares its error with the rate's)
+        assert e < 15e-6
+        assert abs(rate) < 4 * rate_e and rate_e < 10e-6  # none was put in: a few ppm
     z = _z_scores(fit, truth)
     assert max(abs(v) for v in z.values()) < Z_MAX, z
     # the same runs, the channels taken as simultaneous: the constants move 10–20× further

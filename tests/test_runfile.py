@@ -94,6 +94,31 @@ def test_round_trip_raw_frames_counters_and_gaps(tmp_path: Path) -> None:
     assert open_run(path, raw=False).can is None
 
 
+def test_retime_places_every_sample_again_and_moves_the_gaps_with_them(tmp_path: Path) -> None:
+    """The recorder's end-of-run clock fit: new times for every row, flushed or not, the
+    values untouched, each gap's times those of the samples it lies between."""
+    path = tmp_path / "run.h5"
+    with RunWriter(path, INFO, channels=standard_channels(), block_rows=4) as run:
+        run.samples("mass_x", np.arange(10) * 0.01, np.linspace(0, 0.1, 10))
+        run.gap("mass_x", 0.09, 0.2, 11)
+        run.samples("mass_x", [0.2, 0.21], [0.11, 0.12])
+        run.samples("table_u", [0.0, 0.001], [1.0, 2.0])
+        late = 5e-4 + (1 + 30e-6) * np.r_[np.arange(10) * 0.01, 0.2, 0.21]
+        run.retime("mass_x", late)
+        with pytest.raises(ValueError, match="3 times for 12 rows"):
+            run.retime("mass_x", late[:3])
+        with pytest.raises(ValueError, match="unknown channel"):
+            run.retime("oil_temp", late)
+    got = open_run(path)
+    mass = got.channels["mass_x"]
+    assert np.array_equal(mass.time, late)
+    assert np.allclose(mass.value, np.r_[np.linspace(0, 0.1, 10), 0.11, 0.12])
+    assert np.array_equal(got.channels["table_u"].time, [0.0, 0.001])  # not asked: as written
+    (gap,) = got.gaps
+    assert (gap.start_sample, gap.end_sample, gap.count) == (9, 10, 11)
+    assert (gap.start_time, gap.end_time) == (late[9], late[10])
+
+
 def test_every_table_describes_itself(tmp_path: Path) -> None:
     """Tools other than ours see units, source, description and dtype on every table."""
     path = tmp_path / "run.h5"

@@ -139,8 +139,9 @@ class IsolatorFit:
     flagged: dict[str, list[str]] = field(default_factory=dict)  # run → constants that differ
     prepared: tuple[PreparedRun, ...] = ()
     # run → the table channel's fitted time offset and its standard error, s
-    # (`channel_skew`); None: not fitted (the runs declare no skew)
-    skew: dict[str, tuple[float, float]] | None = None
+    # (`channel_skew`) as (offset s, its std, rate, its std); None: not fitted (the runs
+    # declare no skew)
+    skew: dict[str, tuple[float, float, float, float]] | None = None
 
     def values_std(self) -> tuple[dict[str, float], dict[str, float]]:
         """The reported constants and their standard errors (SI; absent: not estimated)."""
@@ -292,12 +293,17 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
         same = last is not None and last[0] is fit.jacobian
         _, cov, G = last[1] if same else skew_step(fit, runs)
         fit = with_skew_share(fit, cov, G)
-        skew = {p.run.name: (float(s), float(np.sqrt(cov[k, k])))
-                for k, (p, s) in enumerate(zip(prepared, offset))}
+        n = len(prepared)
+        skew = {p.run.name: (float(offset[k]), float(np.sqrt(cov[k, k])))
+                for k, p in enumerate(prepared)}
+        drift = {p.run.name: (float(offset[n + k]), float(np.sqrt(cov[n + k, n + k])))
+                 for k, p in enumerate(prepared)}
         progress("  table channel offset " + ", ".join(
-            f"{n} {s * 1e3:+.4f} ± {e * 1e3:.4f} ms" + (" (at the limit)" if
-                                                      abs(s) >= skew_limit else "")
-            for n, (s, e) in skew.items()))
+            f"{name} {s * 1e3:+.4f} ± {e * 1e3:.4f} ms" + (" (at the limit)" if
+                                                         abs(s) >= skew_limit else "")
+            + f", rate {drift[name][0] * 1e6:+.1f} ± {drift[name][1] * 1e6:.1f} ppm"
+            for name, (s, e) in skew.items()))
+        skew = {name: (*skew[name], *drift[name]) for name in skew}
     return fit, tuple(prepared), skew
 
 
@@ -333,6 +339,7 @@ def _alpha_starts(proj: Projection, model0: IsolatorModel, data: Data):
 
 
 SKEW_ITERATIONS = 4
+DRIFT_LIMIT = 1e-4  # the skew's rate within a run: two device clocks' fits, 100 ppm apart
 SKEW_CONVERGED = 0.25  # standard errors: a further step smaller than this is not taken
 
 
@@ -343,23 +350,28 @@ def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: flo
     Returns the fit, the shifted runs, the offsets (s) and, when the last step was
     computed at the returned fit, (its Jacobian, that step) for reuse; else None.
     """
-    offset, last = np.zeros(len(prepared)), None
+    n = len(prepared)
+    offset, last = np.zeros(2 * n), None
+    bound = np.repeat([limit, DRIFT_LIMIT], n)
     for _ in range(SKEW_ITERATIONS):
         last = (fit.jacobian, skew_step(fit, [p.oe for p in prepared]))
         step, cov, _ = last[1]
-        new = np.clip(offset + step, -limit, limit)
+        new = np.clip(offset + step, -bound, bound)
         if np.all(np.abs(new - offset) <= SKEW_CONVERGED * np.sqrt(np.diag(cov))):
             break
-        prepared = tuple(shift_input(p, float(d)) for p, d in zip(prepared, new - offset))
+        d = new - offset
+        prepared = tuple(shift_input(p, float(d[k]), float(d[n + k]))
+                         for k, p in enumerate(prepared))
         offset = new
         fit, last = refine(fit.model, [p.oe for p in prepared], fit.names), None
     return fit, prepared, offset, last
 
 
-def shift_input(p: PreparedRun, skew: float) -> PreparedRun:
-    """The prepared run with its table motion `skew` seconds later (z, ż follow)."""
+def shift_input(p: PreparedRun, skew: float, drift: float = 0.0) -> PreparedRun:
+    """The prepared run with its table motion skew + drift (t − t_mid) seconds later
+    (z, ż follow)."""
     t = p.run.t
-    table = shifted_table(p.table, t, skew)
+    table = shifted_table(p.table, t, skew, drift)
     u, ud = table.motion(t), table.motion.derivative()(t)
     x = p.z + p.table.motion(t)
     xd = p.zd + p.table.motion.derivative()(t)

@@ -60,8 +60,10 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
                      if hi > lo else f"  {n}: the scan's lowest cost is at {lo:.3g} {unit}, "
                      f"not significantly below the held value ({scanned})")
     if fit.skew:
-        lines.append("table channel time offset, fitted (ms, ± 95 %): " + ", ".join(
-            f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}" for r, (s, e) in fit.skew.items()))
+        lines.append("table channel time offset at mid-run, fitted (ms, ± 95 %), and its "
+                     "rate (ppm): " + ", ".join(
+                         f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}, {d * 1e6:+.1f} ± "
+                         f"{Z95 * de * 1e6:.1f}" for r, (s, e, d, de) in fit.skew.items()))
     return "\n".join(lines)
 
 
@@ -117,9 +119,11 @@ def fit_json(fit: IsolatorFit) -> dict:
             # held constants: the range of values the runs cannot tell apart (SI)
             "consistent_range": {n: list(r) for n, r in
                                  (fit.joint.consistent.items() if fit.joint else ())},
-            # run → the table channel's fitted time offset (s), std; null: not fitted
+            # run → the table channel's fitted time offset at mid-run (s), std, and its
+            # rate (s/s), std; null: not fitted
             "channel_skew_s": (None if fit.skew is None else
-                               {r: {"value": s, "std": e} for r, (s, e) in fit.skew.items()}),
+                               {r: {"value": s, "std": e, "rate": d, "rate_std": de}
+                                for r, (s, e, d, de) in fit.skew.items()}),
             "appendix_a": {"names": list(a.names), "values": a.as_dict(),
                            "std": dict(zip(a.names, a.std.tolist())), "sigma2_N2": a.sigma2,
                            "A": a.A.tolist(), "b": a.b.tolist(),
