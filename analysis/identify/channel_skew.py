@@ -18,8 +18,16 @@ so the model is driven by u(t − s).
 The skew also drifts within a run: each channel's clock fit has its own rate
 error (a line under a few seconds of fastest deliveries; on a loaded machine the
 table's and the mass's disagreed by up to 39 ppm, 0.2 ms over a 5 s run, 0.4 mm
-of x at run C's speed). So each run's skew is s + r (t − t_mid): an offset at the
-run's middle and a rate, both fitted, both carried into the constants' covariance.
+of x at run C's speed). So each run's skew is s + ρ (t − t_c): an offset at the
+table motion's centroid t_c and a rate, both fitted, both carried into the
+constants' covariance, the rate only where the run determines it (standard error
+below 10 ppm: runs that move for seconds give 2.5 ppm; run C's ramps, 0.3 s, give
+~25 ppm, and over 0.3 s no rate the clocks can have moves x — held at 0 there,
+its freedom only widened the constants' error). About the centroid the two are
+nearly uncorrelated; about
+the record's middle, a run whose ramps all come early (run C) traded one for the
+other along a valley where the BLAS kernel's last bits chose the point (offset
+−161 or −103 µs, rate +1 or +45 ppm, the constants alike).
 Measured on 20 rig campaigns before the rate was fitted: the 95 % intervals
 covered the rig's constants in 78 % of cases, and with the samples placed at
 their true instants (the simulator's truth file) in 7 of 8 where the rig's own
@@ -48,32 +56,35 @@ DRIFT_STEP = 1e-5  # the rate's finite-difference step: 20 µs at 2 s from the m
 DRIFT_SCALE = 1e-5  # the rate column's unit (10 ppm)
 
 
-def run_middle(t: np.ndarray) -> float:
-    """s: the instant a run's skew offset is stated at (its rate turns about it)."""
-    return 0.5 * float(t[0] + t[-1])
+def skew_origin(motion: PPoly, t: np.ndarray) -> float:
+    """s: the instant a run's skew offset is stated at and its rate turns about — the
+    centroid of the table's speed over the run's samples, where the data see the skew."""
+    speed = np.abs(motion.derivative()(t))
+    total = float(np.sum(speed))
+    return float(np.sum(speed * t) / total) if total > 0 else 0.5 * float(t[0] + t[-1])
 
 
-def shifted_motion(motion: PPoly, skew: float, drift: float = 0.0, middle: float = 0.0
+def shifted_motion(motion: PPoly, skew: float, drift: float = 0.0, origin: float = 0.0
                    ) -> PPoly:
-    """The table motion later by skew + drift (t − middle): the PPoly's breaks moved and
+    """The table motion later by skew + drift (t − origin): the PPoly's breaks moved and
     each piece stretched by 1 + drift."""
     if drift == 0.0:
         return PPoly(motion.c, motion.x + skew)
     order = motion.c.shape[0] - 1
     stretch = (1.0 + drift) ** -np.arange(order, -1, -1, dtype=float)
     return PPoly(motion.c * stretch[:, None],
-                 motion.x + skew + drift * (motion.x - middle))
+                 motion.x + skew + drift * (motion.x - origin))
 
 
 def shifted_table(table: TableMotion, t: np.ndarray, skew: float, drift: float = 0.0
                   ) -> TableMotion:
-    """The table estimate later by skew + drift (t − t_mid): ramps moved and stretched,
-    so the input's own uncertainty (`input_error`) is propagated around the shifted
-    motion."""
-    middle = run_middle(t)
+    """The table estimate later by skew + drift (t − t_c) (`skew_origin`): ramps moved
+    and stretched, so the input's own uncertainty (`input_error`) is propagated around
+    the shifted motion."""
+    origin = skew_origin(table.motion, t)
     if not table.ramps:
-        return replace(table, motion=shifted_motion(table.motion, skew, drift, middle))
-    ramps = tuple((r[0] + skew + drift * (r[0] - middle), r[1] * (1.0 + drift), *r[2:])
+        return replace(table, motion=shifted_motion(table.motion, skew, drift, origin))
+    ramps = tuple((r[0] + skew + drift * (r[0] - origin), r[1] * (1.0 + drift), *r[2:])
                   for r in table.ramps)
     return replace(table, ramps=ramps, motion=step_pulse_motion(t, ramps, table.lag,
                                                                     table.shape))
@@ -85,8 +96,8 @@ def skew_columns(fit: OutputErrorFit, runs: list[RunData]) -> np.ndarray:
     columns k and n + k, zero elsewhere. One parallel batch each."""
     later = [replace(r, motion=shifted_motion(r.motion, SKEW_STEP)) for r in runs]
     d = (scaled_residual(fit.model, later) - fit.residual) / SKEW_STEP * SKEW_SCALE
-    faster = [replace(r, motion=shifted_motion(r.motion, 0.0, DRIFT_STEP, run_middle(r.t)))
-              for r in runs]
+    faster = [replace(r, motion=shifted_motion(r.motion, 0.0, DRIFT_STEP,
+                                               skew_origin(r.motion, r.t))) for r in runs]
     e = (scaled_residual(fit.model, faster) - fit.residual) / DRIFT_STEP * DRIFT_SCALE
     n = len(runs)
     cols, start = np.zeros((d.size, 2 * n)), 0
@@ -97,10 +108,11 @@ def skew_columns(fit: OutputErrorFit, runs: list[RunData]) -> np.ndarray:
     return cols
 
 
-def skew_step(fit: OutputErrorFit, runs: list[RunData]
+def skew_step(fit: OutputErrorFit, runs: list[RunData], rates: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Gauss–Newton step of each run's skew offset (s) then rate (1), their covariance,
-    G) from `fit`: arrays of 2 n, (2 n, 2 n), (constants, 2 n).
+    G) from `fit`: arrays of 2 n, (2 n, 2 n), (constants, 2 n). `rates` (n,) bool: the
+    runs whose rate is fitted (default all); a held rate has a zero step, row and column.
 
     Each run has its own skew: every run reaches the rig by its own deliveries, and
     the smallest latency they saw differs by run (0.11–0.19 ms measured). The step
@@ -110,15 +122,19 @@ def skew_step(fit: OutputErrorFit, runs: list[RunData]
     G C_s Gᵀ (the partitioned inverse), the skews' share.
     """
     J, r = fit.jacobian, fit.residual
-    Js = skew_columns(fit, runs)
+    n = len(runs)
+    keep = np.r_[np.ones(n, bool), np.ones(n, bool) if rates is None else rates]
+    Js = skew_columns(fit, runs)[:, keep]
     A = np.column_stack([J, Js])
     delta = np.linalg.lstsq(A, -r, rcond=None)[0]
     s2 = float(r @ r) / max(r.size - A.shape[1], 1)
-    n = Js.shape[1]
-    unit = np.repeat([SKEW_SCALE, DRIFT_SCALE], n // 2)
-    cov = s2 * gram_inverse(A)[-n:, -n:] * np.outer(unit, unit)
-    G = -np.linalg.lstsq(J, Js, rcond=None)[0] / unit
-    return delta[-n:] * unit, cov, G
+    m = Js.shape[1]
+    unit = np.repeat([SKEW_SCALE, DRIFT_SCALE], n)[keep]
+    step, cov, G = np.zeros(2 * n), np.zeros((2 * n, 2 * n)), np.zeros((J.shape[1], 2 * n))
+    step[keep] = delta[-m:] * unit
+    cov[np.ix_(keep, keep)] = s2 * gram_inverse(A)[-m:, -m:] * np.outer(unit, unit)
+    G[:, keep] = -np.linalg.lstsq(J, Js, rcond=None)[0] / unit
+    return step, cov, G
 
 
 def with_skew_share(fit: OutputErrorFit, cov_skew: np.ndarray, G: np.ndarray
