@@ -139,9 +139,9 @@ class IsolatorFit:
     flagged: dict[str, list[str]] = field(default_factory=dict)  # run → constants that differ
     prepared: tuple[PreparedRun, ...] = ()
     # run → the table channel's fitted time offset and its standard error, s
-    # (`channel_skew`) as (offset s, its std, rate, its std or None where held); None: not
-    # fitted (the runs declare no skew)
-    skew: dict[str, tuple[float, float, float, float | None]] | None = None
+    # (`channel_skew`) as (offset s, its std, rate, its std); None: not fitted (the runs
+    # declare no skew)
+    skew: dict[str, tuple[float, float, float, float]] | None = None
 
     def values_std(self) -> tuple[dict[str, float], dict[str, float]]:
         """The reported constants and their standard errors (SI; absent: not estimated)."""
@@ -282,7 +282,7 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
     skew = None
     if skew_limit > 0:
         progress("output error: the table channel's time offset")
-        fit, prepared, offset, last, rates = _fit_skew(fit, tuple(prepared), skew_limit)
+        fit, prepared, offset, last = _fit_skew(fit, tuple(prepared), skew_limit)
         runs = [p.oe for p in prepared]
     fit, held = _settle_nonsmooth(fit, runs, held, progress)
     fit, held = _hold_loose(fit, start, runs, held, progress)
@@ -291,18 +291,17 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
         # the last step's J_s holds where the constants have not moved since (only the
         # covariance has): the Jacobian and residual are the same arrays
         same = last is not None and last[0] is fit.jacobian
-        _, cov, G = last[1] if same else skew_step(fit, runs, rates)
+        _, cov, G = last[1] if same else skew_step(fit, runs)
         fit = with_skew_share(fit, cov, G)
         n = len(prepared)
         skew = {p.run.name: (float(offset[k]), float(np.sqrt(cov[k, k])))
                 for k, p in enumerate(prepared)}
-        drift = {p.run.name: (float(offset[n + k]), float(np.sqrt(cov[n + k, n + k]))
-                              if rates[k] else None) for k, p in enumerate(prepared)}
+        drift = {p.run.name: (float(offset[n + k]), float(np.sqrt(cov[n + k, n + k])))
+                 for k, p in enumerate(prepared)}
         progress("  table channel offset " + ", ".join(
             f"{name} {s * 1e3:+.4f} ± {e * 1e3:.4f} ms" + (" (at the limit)" if
                                                          abs(s) >= skew_limit else "")
-            + (f", rate {drift[name][0] * 1e6:+.1f} ± {drift[name][1] * 1e6:.1f} ppm"
-               if drift[name][1] is not None else ", rate held (not determined)")
+            + f", rate {drift[name][0] * 1e6:+.1f} ± {drift[name][1] * 1e6:.1f} ppm"
             for name, (s, e) in skew.items()))
         skew = {name: (*skew[name], *drift[name]) for name in skew}
     return fit, tuple(prepared), skew
@@ -341,7 +340,6 @@ def _alpha_starts(proj: Projection, model0: IsolatorModel, data: Data):
 
 SKEW_ITERATIONS = 4
 DRIFT_LIMIT = 1e-4  # the skew's rate within a run: two device clocks' fits, 100 ppm apart
-RATE_DETERMINED = 1e-5  # a run's rate is fitted where its std is below (2.5e-6 / 2.5e-5)
 SKEW_CONVERGED = 0.25  # standard errors: a further step smaller than this is not taken
 
 
@@ -349,18 +347,14 @@ def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: flo
     """Gauss–Newton on the runs' skews with the constants (`channel_skew.skew_step`),
     each step's shifts applied to the runs and the constants refitted, within ±limit.
 
-    Returns the fit, the shifted runs, the offsets (s) then rates, when the last step was
-    computed at the returned fit (its Jacobian, that step) for reuse, else None, and
-    which runs' rates are fitted.
+    Returns the fit, the shifted runs, the offsets (s) then rates and, when the last step
+    was computed at the returned fit, (its Jacobian, that step) for reuse; else None.
     """
     n = len(prepared)
     offset, last = np.zeros(2 * n), None
     bound = np.repeat([limit, DRIFT_LIMIT], n)
-    # which runs determine their rate: decided once, at the start (it follows the motion)
-    cov = skew_step(fit, [p.oe for p in prepared])[1]
-    rates = np.sqrt(np.diag(cov)[n:]) < RATE_DETERMINED
     for _ in range(SKEW_ITERATIONS):
-        last = (fit.jacobian, skew_step(fit, [p.oe for p in prepared], rates))
+        last = (fit.jacobian, skew_step(fit, [p.oe for p in prepared]))
         step, cov, _ = last[1]
         new = np.clip(offset + step, -bound, bound)
         if np.all(np.abs(new - offset) <= SKEW_CONVERGED * np.sqrt(np.diag(cov))):
@@ -370,7 +364,7 @@ def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: flo
                          for k, p in enumerate(prepared))
         offset = new
         fit, last = refine(fit.model, [p.oe for p in prepared], fit.names), None
-    return fit, prepared, offset, last, rates
+    return fit, prepared, offset, last
 
 
 def shift_input(p: PreparedRun, skew: float, drift: float = 0.0) -> PreparedRun:

@@ -63,9 +63,8 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
         lines.append("table channel time offset (at the table motion's centroid), fitted (ms, "
                      "± 95 %), and its "
                      "rate (ppm): " + ", ".join(
-                         f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}, " + (
-                             f"{d * 1e6:+.1f} ± {Z95 * de * 1e6:.1f}" if de is not None
-                             else "held") for r, (s, e, d, de) in fit.skew.items()))
+                         f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}, {d * 1e6:+.1f} ± "
+                         f"{Z95 * de * 1e6:.1f}" for r, (s, e, d, de) in fit.skew.items()))
     return "\n".join(lines)
 
 
