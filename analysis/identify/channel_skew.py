@@ -24,10 +24,11 @@ constants' covariance. A run whose motion is brief (run C's ramps) pins its rate
 only to ~25 ppm, and that uncertainty belongs in the constants': held at 0 there,
 the 95 % intervals of 20 rig campaigns covered the rig's α 3 times in 4 (α's
 error bar shrank to a third, its spread did not). About the centroid the two are
-nearly uncorrelated; about
-the record's middle, a run whose ramps all come early (run C) traded one for the
-other along a valley where the BLAS kernel's last bits chose the point (offset
-−161 or −103 µs, rate +1 or +45 ppm, the constants alike).
+nearly uncorrelated; about the record's middle, a run whose ramps all come early
+(run C) traded one for the other along a valley where the BLAS kernel's last bits
+chose the point (offset −161 or −103 µs, rate +1 or +45 ppm, the constants alike).
+The centroid is taken from the motion as it stands at each step; a step moves it by
+the step's offset, which changes the shift by rate × offset, ~1e-9 s.
 Measured on 20 rig campaigns before the rate was fitted: the 95 % intervals
 covered the rig's constants in 78 % of cases, and with the samples placed at
 their true instants (the simulator's truth file) in 7 of 8 where the rig's own

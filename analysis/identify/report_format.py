@@ -61,8 +61,7 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
                      f"not significantly below the held value ({scanned})")
     if fit.skew:
         lines.append("table channel time offset (at the table motion's centroid), fitted (ms, "
-                     "± 95 %), and its "
-                     "rate (ppm): " + ", ".join(
+                     "± 95 %), and its rate (ppm): " + ", ".join(
                          f"{r} {s * 1e3:+.4f} ± {Z95 * e * 1e3:.4f}, {d * 1e6:+.1f} ± "
                          f"{Z95 * de * 1e6:.1f}" for r, (s, e, d, de) in fit.skew.items()))
     return "\n".join(lines)
@@ -121,8 +120,7 @@ def fit_json(fit: IsolatorFit) -> dict:
             "consistent_range": {n: list(r) for n, r in
                                  (fit.joint.consistent.items() if fit.joint else ())},
             # run → the table channel's fitted time offset at the table motion's centroid (s),
-            # std, and its
-            # rate (s/s), std; null: not fitted
+            # std, and its rate (s/s), std; null: not fitted
             "channel_skew_s": (None if fit.skew is None else
                                {r: {"value": s, "std": e, "rate": d, "rate_std": de}
                                 for r, (s, e, d, de) in fit.skew.items()}),
