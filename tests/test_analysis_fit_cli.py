@@ -154,6 +154,37 @@ def test_runfile_is_read_onto_one_grid(tmp_path: Path, run_a) -> None:
     np.testing.assert_allclose(back.x, run_a.x[:back.t.size])
 
 
+def test_the_table_motion_is_fitted_to_the_table_sensors_own_samples(tmp_path: Path) -> None:
+    """Two sensor clocks 65 ppm apart, the table's samples 0.82 of a sample off x's at the
+    start: interpolated onto x's instants, u's noise is a weighted mean of two samples
+    whose weights drift through the run (0.85 σ at the start, σ near the end). The table
+    motion is fitted to the samples as taken: the noise read is the sensor's, the fit
+    a step pulse at the noise (on u interpolated: σ read 7–12 % low over five draws,
+    and a rig campaign's run B fell back to the smoothing spline for it)."""
+    from analysis.identify.pipeline import prepare
+    from analysis.simulate import simulate
+    from rig.profile import load_profile
+
+    model, prof = report_model("average"), load_profile("B")
+    rng = np.random.default_rng(3)
+    sigma = 25.4e-6
+    r = simulate(model, prof.motion(), duration=prof.duration, dt=1e-3)
+    tu = -0.82e-3 + 1e-3 * (1 - 65e-6) * np.arange(r.t.size + 1)
+    u = prof.sample(tu)[0] + sigma * rng.standard_normal(tu.size)
+    path = tmp_path / "B.h5"
+    with RunWriter(path, RunInfo("B", 'name = "B"\n', "sim")) as w:
+        w.samples("table_u", tu, u)
+        w.samples("mass_x", r.t, r.x + sigma * rng.standard_normal(r.t.size))
+    run = load_runs([path], model.mass).runs[0]
+    t_own, u_own = run.table_channel()
+    np.testing.assert_allclose(t_own, tu, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(u_own, u)
+    table = prepare(run).table
+    assert table.method == "step-pulse fit"
+    assert table.sigma == pytest.approx(sigma, rel=0.05)
+    assert 0.9 < table.residual_over_noise < 1.1
+
+
 def test_incomplete_runfile_is_refused(tmp_path: Path, run_a, capsys) -> None:
     path = write_runfile(tmp_path / "A.h5", run_a, complete=False)
     assert main(["fit", str(path), "--mass", "2721.6"]) == 2

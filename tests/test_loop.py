@@ -211,7 +211,10 @@ def test_a_refit_ends_converged_with_the_finite_difference_jacobian():
     r = np.concatenate([(p[0] - d.x) / d.sigma_x for p, d in zip(pred, data)])
     J = np.vstack([((p[1:] - p[0]) / d.sigma_x / steps[:, None]).T for p, d in zip(pred, data)])
     np.testing.assert_allclose(np.concatenate(fit.residuals), r, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(fit.jacobian, J, rtol=1e-9, atol=1e-9)
+    # θ comes back through values / scales, an ulp from the solver's own: an event
+    # located in a perturbed row may move by that: 7e-9 in 2 of 54,018 entries (measured
+    # under OPENBLAS_CORETYPE=Sandybridge)
+    np.testing.assert_allclose(fit.jacobian, J, rtol=1e-9, atol=1e-7)
     gain = J @ np.linalg.lstsq(J, r, rcond=None)[0]  # what one more Gauss–Newton step cuts
     assert float(gain @ gain) < 0.1
     assert fit.residual_over_noise == pytest.approx(1.0, abs=0.05)

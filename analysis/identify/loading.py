@@ -7,11 +7,19 @@ then agree with `--units` when both are given. Run files: channels `table_u`
 and `mass_x` (metres), sampled by different sensors, so both are put on one
 uniform grid at the slower channel's rate over the time they share, laid on the
 mass sensor's own sampling instants: x, which output error fits sample by sample
-against its noise σ_x, keeps its samples as they are; u, which only the table
-motion's fit reads (`analysis.table_motion`, whose σ_u allows for it), is
-interpolated. A grid between x's samples made each x a weighted mean of two,
-down to 0.71 σ_x of noise at mid-way, which the third-difference σ_x reads as
-0.41 σ_x: a right model would have shown resid/noise up to 1.7.
+against its noise σ_x, keeps its samples as they are. A grid between x's samples
+made each x a weighted mean of two, down to 0.71 σ_x of noise at mid-way, which
+the third-difference σ_x reads as 0.41 σ_x: a right model would have shown
+resid/noise up to 1.7. u is interpolated onto that grid, and the table sensor's
+own samples are kept beside it (`MeasuredRun.table_samples`, on the table's own
+uniform grid: a missing sample is interpolated, no other moves): the table
+motion is fitted to those. Interpolated, u's noise is a weighted mean of two
+samples whose weights follow the phase between the two sensors' clocks, and that
+phase drifts through a run (two clocks 65 ppm apart: a quarter of a sample
+over 3.6 s), so the noise the table motion's accept test reads at the rests was not
+the noise along the ramps: measured on 20 rig campaigns, one run's step-pulse
+fit was refused for it, and the smoothing spline that replaced it
+left its x at 2.3× the noise.
 
 Each sensor channel's times are first put back on one straight line of its
 sample index: the rig places a sample on its clock fit as that stands when the
@@ -80,8 +88,9 @@ def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loade
         path = Path(path)
         if not path.exists():
             raise DataError(f"{path}: no such file")
+        table = None
         if path.suffix.lower() in (".h5", ".hdf5"):
-            t, u, x = _read_runfile(path, out.warnings)
+            t, u, x, table = _read_runfile(path, out.warnings)
         else:
             t, u, x = _read_csv(path, units)
         t, u, x = _uniform(path, t, u, x, out.warnings)
@@ -91,7 +100,8 @@ def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loade
         name = _unique(path.stem, names)
         rig_file = path.suffix.lower() in (".h5", ".hdf5")
         out.runs.append(MeasuredRun(name, t, u, x, float(mass),
-                                    skew_limit=RUNFILE_SKEW_LIMIT if rig_file else 0.0))
+                                    skew_limit=RUNFILE_SKEW_LIMIT if rig_file else 0.0,
+                                    table_samples=table))
     return out
 
 
@@ -161,7 +171,9 @@ def _column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
 
 
 def _read_runfile(path: Path, warnings: list[str]
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                             tuple[np.ndarray, np.ndarray]]:
+    """x's grid t, u and x on it, and the table channel on its own uniform grid."""
     check_readable(path, _read_channels)  # HDF5 may hang or crash on a damaged file
     run = _read_channels(path)
     if not run.status.complete:
@@ -192,7 +204,9 @@ def _read_runfile(path: Path, warnings: list[str]
     if first < tx.size and tx[first] < t1 - MIN_DURATION:
         t0 = float(tx[first])
     t = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1)
-    return t, np.interp(t, tu, cu.value), np.interp(t, tx, cx.value)
+    own = np.linspace(tu[0], tu[-1], round((tu[-1] - tu[0]) / float(np.median(np.diff(tu)))) + 1)
+    return (t, np.interp(t, tu, cu.value), np.interp(t, tx, cx.value),
+            (own, np.interp(own, tu, cu.value)))
 
 
 def _final_fit_times(t: np.ndarray) -> np.ndarray:

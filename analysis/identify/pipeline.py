@@ -82,6 +82,13 @@ class MeasuredRun:
     # s: the largest time offset between the u and x channels the acquisition allows
     # (`channel_skew`); 0: the channels are taken as simultaneous
     skew_limit: float = 0.0
+    # (s, m): the table sensor's own samples where it has its own clock (a run file);
+    # None: u at t is what the sensor took
+    table_samples: tuple[np.ndarray, np.ndarray] | None = None
+
+    def table_channel(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t s, u m) as the table sensor took them: what its motion is fitted to."""
+        return self.table_samples if self.table_samples is not None else (self.t, self.u)
 
 
 @dataclass(frozen=True)
@@ -101,10 +108,16 @@ class PreparedRun:
 
 
 def prepare(run: MeasuredRun, method: str = "auto") -> PreparedRun:
-    """Differentiate x, estimate u(t) and u̇(t), drop rest."""
+    """Differentiate x, estimate u(t) and u̇(t), drop rest.
+
+    The table motion is fitted to the table sensor's own samples: its noise is white
+    there, where u interpolated onto x's instants has neighbours correlated by the
+    clocks' phase, which drifts through a run (`analysis.identify.loading`).
+    """
     dt = float(run.t[1] - run.t[0])
     dx = differentiate(run.x, dt, method=method)
-    table = refine_table(run.t, run.u, estimate_table_motion(run.t, run.u))
+    tu, uu = run.table_channel()
+    table = refine_table(tu, uu, estimate_table_motion(tu, uu))
     u, ud = table.motion(run.t), table.motion.derivative()(run.t)
     z, zd = dx.x - u, dx.v - ud
     active = active_mask(zd, dt, dx.noise_v)
