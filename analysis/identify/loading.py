@@ -98,9 +98,9 @@ def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loade
             for column, v in (("u", u), ("x", x)):
                 _check_speed(path, column, t, v, out.warnings)
         name = _unique(path.stem, names)
-        rig_file = path.suffix.lower() in (".h5", ".hdf5")
+        # a run file's two channels come by two paths: the table's own samples, a skew
         out.runs.append(MeasuredRun(name, t, u, x, float(mass),
-                                    skew_limit=RUNFILE_SKEW_LIMIT if rig_file else 0.0,
+                                    skew_limit=RUNFILE_SKEW_LIMIT if table else 0.0,
                                     table_samples=table))
     return out
 
