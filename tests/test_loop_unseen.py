@@ -1,0 +1,60 @@
+"""The loop on data it has never seen, through the command a user runs.
+
+Campaigns come from `bench/unseen/generator.py`, which shares no code or constants
+with the analysis (its own integrator, ramp shapes, effect shapes and sizes; constants
+drawn ±30 % around Table 1, noise 0.5–4× the rig's). Only A.csv, B.csv and C.csv
+reach `analysis fit`; the generator's truth stays in another directory. The seeds are
+a subset of `bench/loop_unseen.py --quick` (the benchmark runs every effect): a clean
+campaign, a hardening spring at 23 % of the peak force, and a 1.6 ms sensor delay.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.test_unseen_generator import gen
+
+NAMES = {"hardening": "cubic_stiffness", "sensor_delay": "sensor_delay"}
+
+
+def _fit(seed: int, effects: tuple[str, ...], tmp_path: Path) -> dict:
+    campaign = gen.make_campaign(seed, effects)
+    truth_dir, runs_dir = tmp_path / "truth", tmp_path / "runs"
+    gen.write_campaign(campaign, truth_dir)
+    runs_dir.mkdir()
+    for run in "ABC":  # the measurements only: truth.json stays behind
+        (truth_dir / f"{run}.csv").rename(runs_dir / f"{run}.csv")
+    out = tmp_path / "fit.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "analysis.cli", "fit", *(str(runs_dir / f"{r}.csv") for r in "ABC"),
+         "--mass", str(gen.MASS), "--json", str(out)],
+        capture_output=True, text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(out.read_text())
+
+
+def test_nothing_is_named_on_a_clean_unseen_campaign(tmp_path):
+    doc = _fit(1, (), tmp_path)
+    assert doc["effects_added"] == []
+    assert doc["residual_after"]["residual_over_noise"] < 1.3
+    assert doc["unexplained"]["value"] is False
+
+
+@pytest.mark.parametrize("seed,effect", [(301, "hardening"), (901, "sensor_delay")])
+def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
+    doc = _fit(seed, (effect,), tmp_path)
+    assert doc["effects_added"] == [NAMES[effect]]
+    # the library's shape is the generator's for both: the residual reaches the noise
+    # (measured 1.01 and 0.98 x; the issue asks for <= 1.3 x)
+    assert doc["residual_after"]["residual_over_noise"] < 1.3
+    assert doc["unexplained"]["value"] is False
+    truth = gen.make_campaign(seed, (effect,)).effects[0]
+    param = {"hardening": ("k3", "k3"), "sensor_delay": ("sensor_delay", "d")}[effect]
+    value = doc["parameters"][param[0]]["value"]
+    assert value == pytest.approx(truth[param[1]], rel=0.10)
