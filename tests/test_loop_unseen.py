@@ -34,7 +34,8 @@ def _fit(seed: int, effects: tuple[str, ...], tmp_path: Path) -> dict:
     proc = subprocess.run(
         [sys.executable, "-m", "analysis.cli", "fit", *(str(runs_dir / f"{r}.csv") for r in "ABC"),
          "--mass", str(gen.MASS), "--json", str(out)],
-        capture_output=True, text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        check=False, capture_output=True, text=True, timeout=600,
+        env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(out.read_text())
 
