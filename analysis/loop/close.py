@@ -73,6 +73,8 @@ NOISE_LEVEL = 1.05  # residual/noise at or below which the model is "at the nois
 UNEXPLAINED_LEVEL = 1.3
 MAX_EFFECTS = 4
 ABSENT = 1e-6  # a nonlinear coefficient this fraction of its linear one: the term is absent
+STOP = ("delta", "epsilon")  # dead band and stop velocity: freed, or held, together
+SHAPE_CONSTANTS = ("alpha", "beta", *STOP)
 
 
 @dataclass(frozen=True)
@@ -142,7 +144,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     start = Hypothesis(model)  # kept: each candidate is also refitted from it (_from_start)
     # δ and ε free with the rest: a base fit that absorbed an effect moved them too (a
     # hardening spring from the independent generator: 18.7 x noise with them held)
-    free = _present(model) + [n for n in ("epsilon", "delta") if n in model.parameters()]
+    free = _present(model) + [n for n in STOP[::-1] if n in model.parameters()]  # ε, δ: column order
     progress("loop: refitting the base model")
     fit = _refit(start, data, free, {})
     base, steps, refused, rebased = fit, [], [], 0
@@ -267,45 +269,27 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
             continue
         cand_h = Hypothesis(ch, h.sensor_gain, h.sensor_delay)
         s = score(fit, data, cand_h, param, c.typical(h.model), c.sign)
-        pending = [(s, c, cand_h)]
-        step, why, better = _refit_tier(fit, free, runs, diag, pending,
-                                        _reidentified(h, runs, pending), start, progress)
+        step, why, better = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, start,
+                                             progress)
         refused.extend(why)
         if step is not None or better is not None:
             return step, refused, better
     return None, refused, None
 
 
-def _refit_tier(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-                pending: list, again: dict[str, Reidentified], start: Hypothesis | None,
-                progress: Callable[[str], None]):
-    """The pending candidates refitted in order and judged: (step, refused, better)."""
-    data = [r.data for r in runs]
-    pending, refused = list(pending), []
-    reached = False  # a candidate has fitted to the noise
-    while pending:
-        # refitted in order of score; one that reaches the noise is judged before the
-        # rest are refitted (they are only if it is refused): at the noise nothing can
-        # fit much better, and the weaker candidates' refits were most of the loop's time
-        batch = []
-        while pending:
-            s, c, cand_h = pending.pop(0)
-            progress(f"loop: refitting with {c.name}")
-            batch.append(_candidate_refit(fit, free, runs, s, c, cand_h, again.get(c.name)))
-            if batch[-1][4].residual_over_noise <= NOISE_LEVEL:
-                reached = True
-                break
-        if not reached:
-            # no candidate reached the noise from the fitted constants (so none is
-            # pending): perhaps they have soaked up the effect (_from_start)
-            batch = [(s, c, cand_h, v, _refit_from_start(start, cf, cand_h, free, s, c, v, data,
-                                                         progress))
-                     for s, c, cand_h, v, cf in batch]
-        step, why, better = _judge(fit, free, runs, diag, batch, progress)
-        refused.extend(why)
-        if step is not None or better is not None:
-            return step, refused, better
-    return None, refused, None
+def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
+                     s: Score, c: Candidate, cand_h: Hypothesis, start: Hypothesis | None,
+                     progress: Callable[[str], None]):
+    """One named candidate refitted and judged: (step, refused, better fit or None)."""
+    progress(f"loop: refitting with {c.name}")
+    again = _reidentified(fit.hypothesis, runs, [(s, c, cand_h)])
+    s, c, cand_h, sizes, cf = _candidate_refit(fit, free, runs, s, c, cand_h, again.get(c.name))
+    if cf.residual_over_noise > NOISE_LEVEL:
+        # not at the noise from the fitted constants: perhaps they have soaked up the
+        # effect (_from_start)
+        cf = _refit_from_start(start, cf, cand_h, free, s, c, sizes, [r.data for r in runs],
+                               progress)
+    return _judge(fit, free, runs, diag, [(s, c, cand_h, sizes, cf)], progress)
 
 
 def _reidentified(h: Hypothesis, runs: Sequence[LoopRun], scores) -> dict[str, Reidentified]:
@@ -405,9 +389,6 @@ def _judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis, 
         refused.append({"candidate": c.name, "reason": "does not predict held-out runs better: "
                         + held["text"]})
     return None, refused, None
-
-
-SHAPE_CONSTANTS = ("alpha", "beta", "delta", "epsilon")
 
 
 def _look_alike_shape(cf: Fit, name: str) -> str | None:
@@ -538,7 +519,7 @@ def _refit_both(h: Hypothesis, data, names, candidates: dict[str, Candidate]) ->
     stick–slip cliff, though, freeing them can walk into another valley, so where the
     refit stays above the noise the held one is tried too."""
     fit = _refit(h, data, names, candidates)
-    held = [n for n in names if n not in ("delta", "epsilon")]
+    held = [n for n in names if n not in STOP]
     if fit.residual_over_noise <= NOISE_LEVEL or len(held) == len(names):
         return fit
     return min((fit, _refit(h, data, held, candidates)), key=lambda f: f.rss)
