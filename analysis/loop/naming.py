@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import convolve1d, minimum_filter1d
@@ -38,7 +38,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 from analysis.identify.output_error import RunData
 from analysis.identify.pipeline import LINEAR
 from analysis.identify.regressors import campaign_regressors
-from analysis.loop.candidates import CANDIDATES, SENSOR_DELAY, SENSOR_GAIN
+from analysis.loop.candidates import CANDIDATES, SENSOR_DELAY, SENSOR_GAIN, Candidate
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
 
@@ -60,6 +60,8 @@ class Naming:
     first: dict[str, float]  # every candidate's BIC fall at the first step (evidence)
     delta: float  # m, the dead band of the last selection
     rows: int  # samples the selection used
+    # the shape each named candidate with shapes to choose was selected at (`Candidate.shapes`)
+    shapes: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,8 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
     """Forward selection by BIC over the candidates not `present` (candidate names)."""
     samples = _samples(runs, model.mass, sensor_delay)
     model = _eq10_shapes(model, samples)
-    cols = _columns(model, samples, [n for n in CANDIDATES if n not in present])
+    variants = _variants([n for n in CANDIDATES if n not in present])
+    cols = _columns(model, samples, variants)
     base = [n for n in cols.fixed if n.startswith("base:")] + \
         [n for n in cols.gated if n.startswith("base:")]
     pool = sorted({n.split(":", 1)[1] for n in (*cols.fixed, *cols.gated)
@@ -90,15 +93,35 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
                  for c in pool}
         falls = {c: current - b for c, (b, _) in trial.items()}
         if not chosen:
-            first = falls
+            for c, f in falls.items():  # a shaped candidate's evidence: its best shape's
+                first[_name(c)] = max(f, first.get(_name(c), -np.inf))
         best = max(falls, key=lambda c: (falls[c], c))  # ties by name: deterministic
         if falls[best] <= BIC_MARGIN:
             break
         chosen.append(best)
         gains.append(falls[best])
         current, delta = trial[best]
-        pool.remove(best)
-    return Naming(tuple(chosen), tuple(gains), first, delta, n)
+        pool = [c for c in pool if _name(c) != _name(best)]
+    shapes = {_name(c): variants[c].shape for c in chosen if c != _name(c)}
+    return Naming(tuple(_name(c) for c in chosen), tuple(gains), first, delta, n, shapes)
+
+
+def _variants(names: Sequence[str]) -> dict[str, Candidate]:
+    """Each candidate under its own name, at the library's shape; one with other shapes
+    to choose also under 'name@i' for each of them (its parameter renamed alike: one
+    model holds them all while the columns are built). Only those count a shape in BIC:
+    the library's shape is the prior, not a choice."""
+    out: dict[str, Candidate] = {}
+    for name in names:
+        c = out[name] = CANDIDATES[name]
+        for i, shape in enumerate(c.shapes):
+            if tuple(shape) != c.shape:
+                out[f"{name}@{i}"] = replace(c.shaped(shape), parameter=f"{c.parameter}@{i}")
+    return out
+
+
+def _name(label: str) -> str:
+    return label.split("@", 1)[0]
 
 
 SHAPE_SPAN = np.geomspace(0.25, 4.0, 9)  # α and β searched over this span of the model's
@@ -113,7 +136,7 @@ def _eq10_shapes(model: IsolatorModel, samples: _Samples) -> IsolatorModel:
     for a in p["alpha"] * SHAPE_SPAN:
         for b in p["beta"] * SHAPE_SPAN:
             m = model.with_parameters(alpha=float(a), beta=float(b))
-            cols = _columns(m, samples, (), deltas=(m.dead_band,))
+            cols = _columns(m, samples, {}, deltas=(m.dead_band,))
             names = list(cols.fixed) + list(cols.gated)
             rss = _best_bic(cols, names, cols.y.size)[0]
             if rss < best[0]:
@@ -126,7 +149,7 @@ def _best_bic(cols: _Columns, names: list[str], n: int) -> tuple[float, float]:
     fixed = np.column_stack([cols.fixed[k] for k in names if k in cols.fixed] or
                             [np.zeros(n)])
     gated = [k for k in names if k in cols.gated]
-    p = len(names) + 1  # the coefficients and δ
+    p = len(names) + 1 + sum("@" in k for k in names)  # the coefficients, δ, chosen shapes
     best = (np.inf, 0.0)
     for i, d in enumerate(cols.deltas):
         A = np.column_stack([fixed] + [cols.gated[k][i] for k in gated])
@@ -178,15 +201,15 @@ def _samples(runs: Sequence[RunData], mass: float, sensor_delay: float) -> _Samp
     return _Samples(per_run, _matched_kernel(wa, dt), dt)
 
 
-def _columns(model: IsolatorModel, samples: _Samples, candidates: Sequence[str],
+def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Candidate],
              deltas: Sequence[float] = tuple(DELTA_GRID)) -> _Columns:
     """Every column on the moving samples of every run, filtered and decimated."""
     per_run, H, dt = samples.per_run, samples.H, samples.dt
-    models = {name: CANDIDATES[name].add_to(model) for name in candidates
-              if CANDIDATES[name].term_kind}  # the model with the candidate, its parameter
+    models = {name: c.add_to(model) for name, c in candidates.items()
+              if c.term_kind}  # the model with the candidate, its parameter
     everything = model  # the model's own terms and every force candidate's
     for name in models:
-        everything = CANDIDATES[name].add_to(everything)[0]
+        everything = candidates[name].add_to(everything)[0]
     gated_terms = everything.structure()[1]
 
     def stack(build) -> np.ndarray:

@@ -39,6 +39,7 @@ from analysis.model.terms import COULOMB, PRELOAD, basis, state_rate
 
 MAX_EVENTS_PER_STEP = 16
 ROOT_ITERATIONS = 60
+LAND_PIECE = 4.0  # steps: a motion whose pieces are longer on average is stepped break to break
 # of ε: the ε band's exit sits this far outside its entry. The located stop event leaves
 # |ż| = ε to the last bit about as often as just inside it, and ε − |ż| = 0 does not arm
 # the exit: the step then ran across the band in one RK4 step, where c2 tanh(βż) turns
@@ -257,6 +258,15 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
         stuck = abs(required_force(kinds, gated, p, y, sz, outside, ua, scratch)) <= fbreak
 
     h = dt / substeps
+    # a fitted profile (a few ramps, pieces many steps long) is stepped break to break, and
+    # a piece shorter than LAND_PIECE steps is crossed in that many: a ramp shorter than
+    # a step falls between RK4's stages otherwise (a 0.7 ms tail ramp of a lagged table,
+    # ±1800 m/s², kicked ż by 0.9 m/s and left run C 900 x noise off at the true
+    # constants; landed on but crossed in one step, 96 µm). A sampled spline's knots are
+    # about a step apart and C², and landing on them would double the work for nothing.
+    nb = breaks.shape[0]
+    land = nb > 1 and breaks[nb - 1] - breaks[0] > LAND_PIECE * h * (nb - 1)
+    ib = 0  # the first break after t, where landing
     t = t0
     recorded = False  # dy holds the rate at the last recorded sample (t_rec and modes)
     t_rec = t0
@@ -271,7 +281,15 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                 t_end = t + h
                 nev = 0
                 while t_end - t > 1e-12 * h:
-                    hrem = t_end - t
+                    t_stop = t_end
+                    if land:
+                        while ib < nb and breaks[ib] <= t + 1e-9 * h:
+                            ib += 1
+                        if ib < nb and breaks[ib] < t_end - 1e-9 * h:
+                            t_stop = breaks[ib]
+                        if 0 < ib < nb:  # a piece shorter than LAND_PIECE steps: that many across it
+                            t_stop = min(t_stop, t + (breaks[ib] - breaks[ib - 1]) / LAND_PIECE)
+                    hrem = t_stop - t
                     # a dead-band mode the state contradicts (|z| < δ yet "outside"): an
                     # exit missed because the entry left z exactly on the edge, where the
                     # exit's event function is not armed (g = 0). Where the spring's jump
@@ -333,12 +351,12 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                     if not fired or nev >= MAX_EVENTS_PER_STEP:
                         for i in range(n):
                             y[i] = y1[i]
-                        t = t_end
+                        t = t_stop
                         if fired:  # too many switches in one step: re-derive modes from the state
                             outside = (abs(y[0]) > delta) if delta > 0.0 else True
                             sz = _sign(y[0])
                             szd = _sign(y[1])
-                        break
+                        continue  # to t_end, or on from a break landed on
                     # earliest event: Illinois regula falsi on the fraction θ of the step
                     theta_best = 1.0
                     for i in range(N_EVENTS):
