@@ -249,7 +249,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     lower valley (hardening as quadratic damping, Coulomb friction as thermal drift).
     Output error then identifies the model with the named effect in it, every
     constant free (δ and ε too), and judges it; only if the top name is refused is
-    the next one tried.
+    the next one tried (`Naming.to_try`).
     """
     data = [r.data for r in runs]
     h = fit.hypothesis
@@ -266,7 +266,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         return None, refused, None
     progress("loop: equation error names " + ", ".join(
         f"{n} (BIC -{g:.0f})" for n, g in zip(naming.order, naming.gains)))
-    for name in naming.order[:MAX_TRIED]:
+    for name in naming.to_try()[:MAX_TRIED]:
         # at the shape equation error chose (a cooling time, a yield), refitted with it
         c = CANDIDATES[name].shaped(naming.shapes[name]) if name in naming.shapes else \
             CANDIDATES[name]

@@ -60,8 +60,18 @@ class Naming:
     first: dict[str, float]  # every candidate's BIC fall at the first step (evidence)
     delta: float  # m, the dead band of the last selection
     rows: int  # samples the selection used
-    # the shape each named candidate with shapes to choose was selected at (`Candidate.shapes`)
+    # the shape each candidate with shapes to choose was selected at (`Candidate.shapes`), or,
+    # not selected, its best at the first step; absent at the library's own shape
     shapes: dict[str, tuple[float, ...]] = field(default_factory=dict)
+
+    def to_try(self) -> tuple[str, ...]:
+        """The top name, then, should it be refused, the others above the margin in the
+        order of their first step's BIC falls: the forward order after the top holds
+        only with the top in the model (a hardening spring's cubic, 3 behind a preload
+        at the first step, fell below the margin with the preload in)."""
+        rest = sorted((n for n, f in self.first.items() if f > BIC_MARGIN
+                       and n not in self.order[:1]), key=lambda n: (-self.first[n], n))
+        return self.order[:1] + tuple(rest)
 
 
 @dataclass(frozen=True)
@@ -87,14 +97,17 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
     chosen: list[str] = []
     gains: list[float] = []
     first: dict[str, float] = {}
+    first_shape: dict[str, tuple[float, ...]] = {}
     current, delta = _best_bic(cols, base, n)
     while pool and len(chosen) < max_effects:
         trial = {c: _best_bic(cols, base + [f"cand:{x}" for x in chosen + [c]], n)
                  for c in pool}
         falls = {c: current - b for c, (b, _) in trial.items()}
         if not chosen:
-            for c, f in falls.items():  # a shaped candidate's evidence: its best shape's
-                first[_name(c)] = max(f, first.get(_name(c), -np.inf))
+            for c in sorted(falls):  # a shaped candidate's evidence: its best shape's
+                if falls[c] > first.get(_name(c), -np.inf):
+                    first[_name(c)] = falls[c]
+                    first_shape[_name(c)] = variants[c].shape
         best = max(falls, key=lambda c: (falls[c], c))  # ties by name: deterministic
         if falls[best] <= BIC_MARGIN:
             break
@@ -102,7 +115,9 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
         gains.append(falls[best])
         current, delta = trial[best]
         pool = [c for c in pool if _name(c) != _name(best)]
-    shapes = {_name(c): variants[c].shape for c in chosen if c != _name(c)}
+    shapes = {**{k: v for k, v in first_shape.items() if k not in map(_name, chosen)},
+              **{_name(c): variants[c].shape for c in chosen}}
+    shapes = {k: v for k, v in shapes.items() if v != CANDIDATES[k].shape}
     return Naming(tuple(_name(c) for c in chosen), tuple(gains), first, delta, n, shapes)
 
 
