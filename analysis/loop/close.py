@@ -170,7 +170,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         refused.extend(dropped)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
-    steps = [replace(s, value=fit.param(s.parameter)[0], std=fit.param(s.parameter)[1])
+    steps = [replace(s, **dict(zip(("value", "std"), fit.param(s.parameter))))
              if s.parameter in fit.names else s for s in steps]
     final_diag = _diagnose(fit, runs)
     # only a residual well above the noise after every candidate is "unexplained": a
@@ -212,7 +212,7 @@ def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunDa
     """
     steps, dropped = list(steps), []
     for step in list(steps):
-        others = [n for n in free if not _of(n, step.parameter)]
+        others = [n for n in free if n not in _own(fit, step.parameter)]
         progress(f"loop: is {step.added} still needed with the effects named after it?")
         without = _refit(fit.hypothesis.with_values({step.parameter: 0.0}), data, others,
                          {s.parameter: CANDIDATES[s.added] for s in steps if s is not step})
@@ -368,12 +368,10 @@ def _judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis, 
             # refitted from there, keeps the cut, that is a better optimum of the model as
             # it is (a sensor gain refitted from the start constants took a force offset's
             # fit from 7.5 to 1.02 x noise with the gain at nothing)
-            without = _without(cf, [n for n in cf.names if not _of(n, s.name)], s.name, data)
-            if without.rss < (1.0 - MIN_DROP) * fit.rss:
-                refused.append({"candidate": c.name, "reason": f"{reason}; the model without "
-                                "it refits " f"{100 * (1 - without.rss / fit.rss):.0f} % lower "
-                                "from its constants: the step is done again from there"})
-                return None, refused, without
+            without = _without(cf, [n for n in cf.names if n not in _own(cf, s.name)],
+                               s.name, data)
+            if rebase := _rebase(fit, without, c, f"{reason}; "):
+                return None, refused + [rebase], without
         if reason:
             refused.append({"candidate": c.name, "reason": reason})
         else:
@@ -382,13 +380,10 @@ def _judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis, 
         # checked in the order of validation: one refit per step where the best passes
         without = _without(cf, list(dict.fromkeys(free + [n for n in ("delta",) if n in cf.names])),
                            s.name, data)
-        if without.rss < (1.0 - MIN_DROP) * fit.rss:
+        if rebase := _rebase(fit, without, c):
             # the model as it is has a better optimum: every candidate must be judged
             # against that, so the step is done again from it before anything is named
-            refused.append({"candidate": c.name, "reason": "the model without it refits "
-                            f"{100 * (1 - without.rss / fit.rss):.0f} % lower from its "
-                            "constants: the step is done again from there"})
-            return None, refused, without
+            return None, refused + [rebase], without
         if without.rss < fit.rss and (reason := _significance(
                 without, cf, s.name, " over the model without it, refitted from its constants")):
             refused.append({"candidate": c.name, "reason": reason})
@@ -406,6 +401,16 @@ def _judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis, 
         refused.append({"candidate": c.name, "reason": "does not predict held-out runs better: "
                         + held["text"]})
     return None, refused, None
+
+
+def _rebase(fit: Fit, without: Fit, c: Candidate, reason: str = "") -> dict | None:
+    """The refusal that sends the step back to `without`, where the model without the
+    candidate keeps the cut its refit found; None where it does not."""
+    if without.rss >= (1.0 - MIN_DROP) * fit.rss:
+        return None
+    return {"candidate": c.name, "reason": f"{reason}the model without it refits "
+            f"{100 * (1 - without.rss / fit.rss):.0f} % lower from its constants: the step "
+            "is done again from there"}
 
 
 def _look_alike_shape(cf: Fit, name: str) -> str | None:
@@ -588,9 +593,10 @@ def _refit(h: Hypothesis, data, names, candidates: dict[str, Candidate],
     return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
 
 
-def _of(parameter: str, name: str) -> bool:
-    """True for the effect's parameter `name` and its shape constants ('name.tau')."""
-    return parameter == name or parameter.startswith(name + ".")
+def _own(fit: Fit, name: str) -> set[str]:
+    """The effect's parameter `name` and its shape constants, as the model names them."""
+    return {name, *(q for t in fit.hypothesis.model.terms if t.name == name
+                    for q in t.shape_names())}
 
 
 def _significance(before: Fit, after: Fit, name: str, against: str = "") -> str:
@@ -601,8 +607,8 @@ def _significance(before: Fit, after: Fit, name: str, against: str = "") -> str:
     # a constant the runs do not determine (std above its value) is no look-alike:
     # its correlation with anything is that of a flat direction; nor is the effect's own
     # shape (a cooling time trades against the drift's size by the physics)
-    loose = ~(after.std < np.abs(after.values)) | np.array(
-        [_of(n, name) and n != name for n in after.names])
+    shapes = _own(after, name) - {name}
+    loose = ~(after.std < np.abs(after.values)) | np.array([n in shapes for n in after.names])
     others = np.nan_to_num(np.delete(np.where(loose, 0.0, np.abs(after.correlation[j])), j),
                            nan=0.0)
     worst = int(np.argmax(others)) if others.size else -1

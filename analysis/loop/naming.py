@@ -115,9 +115,8 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
         gains.append(falls[best])
         current, delta = trial[best]
         pool = [c for c in pool if _name(c) != _name(best)]
-    shapes = {**{k: v for k, v in first_shape.items() if k not in map(_name, chosen)},
-              **{_name(c): variants[c].shape for c in chosen}}
-    shapes = {k: v for k, v in shapes.items() if v != CANDIDATES[k].shape}
+    shapes = {k: v for k, v in {**first_shape, **{_name(c): variants[c].shape for c in chosen}}
+              .items() if v != CANDIDATES[k].shape}
     return Naming(tuple(_name(c) for c in chosen), tuple(gains), first, delta, n, shapes)
 
 
