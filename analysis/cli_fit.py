@@ -21,11 +21,15 @@ from rig.units import to_si
 def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="identify Eq 10 from base-excited runs (HDF5 or CSV t,u,x)")
     p.add_argument("files", nargs="+", type=Path, metavar="RUN.h5|CSV")
-    mass = p.add_mutually_exclusive_group()  # required for base-excited files only
-    mass.add_argument("--mass", type=float, metavar="KG", help="isolated mass, kg")
-    mass.add_argument("--mass-lb", type=float, metavar="LB", help="isolated mass, lb")
+    mass = p.add_mutually_exclusive_group()  # CSV carries no mass; a run file does
+    mass.add_argument("--mass", type=float, metavar="KG",
+                      help="isolated mass, kg (default: the run files' payload mass)")
+    mass.add_argument("--mass-lb", type=float, metavar="LB",
+                      help="isolated mass, lb (default: the run files' payload mass)")
     p.add_argument("--units", choices=UNITS, default=None,
                    help="CSV displacement units (default: from the header, else m)")
+    p.add_argument("--include-aborted", action="store_true",
+                   help="fit run files that did not end in success (never armed, e-stopped)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON")
     p.add_argument("--report", type=Path, metavar="DIR",
                    help="write PNG figures and index.html into DIR")
@@ -41,10 +45,7 @@ def run_fit(args: argparse.Namespace) -> int:
             else float(to_si(args.mass_lb, "lbm")) if args.mass_lb is not None else None)
     if is_force_driven(args):
         return run_force_fit(args, mass)
-    if mass is None:
-        raise DataError("a base-excited fit needs the isolated mass: give --mass KG or "
-                        "--mass-lb LB")
-    loaded = load_runs(args.files, mass, args.units)
+    loaded = load_runs(args.files, mass, args.units, args.include_aborted)
     for w in loaded.warnings:
         print(f"analysis: warning: {w}", file=sys.stderr)
     start = time.perf_counter()

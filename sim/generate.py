@@ -94,10 +94,11 @@ def measure(true: np.ndarray, noise: float, rng: np.random.Generator,
 
 
 def write_run_csv(run: GeneratedRun, path: Path, units: str = "m") -> None:
-    """`t,u,x`: time in s, displacements in `units` (m or in), as a rig would export them."""
+    """`t [s],u [in],x [in]`: displacements in `units` (m or in), named in the header
+    so that no reader has to guess them."""
     scale = 1.0 / factor(units)
     with open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
-        w.writerow(["t", "u", "x"])
+        w.writerow(["t [s]", f"u [{units}]", f"x [{units}]"])
         for row in zip(run.t, run.u * scale, run.x * scale):
             w.writerow([f"{row[0]:.6f}", f"{row[1]:.9g}", f"{row[2]:.9g}"])

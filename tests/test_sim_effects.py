@@ -104,7 +104,7 @@ def test_csv_holds_only_what_a_rig_logs(tmp_path, units, scale):
     text = path.read_text()
     assert "coulomb" not in text and "c3" not in text
     rows = list(csv.reader(text.splitlines()))
-    assert rows[0] == ["t", "u", "x"]
+    assert rows[0] == ["t [s]", f"u [{units}]", f"x [{units}]"]  # the units, not a guess
     data = np.array(rows[1:], float)
     np.testing.assert_allclose(data[:, 0], run.t, atol=1e-6)
     np.testing.assert_allclose(data[:, 1], run.u * scale, rtol=1e-8, atol=1e-12)

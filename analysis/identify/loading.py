@@ -2,8 +2,15 @@
 
 CSV: a header row, then one sample per row; columns `t` (s), `u` (table) and
 `x` (mass absolute displacement), in metres unless told otherwise. A header
-may carry its unit in brackets (`u [in]`, as `sim response` writes); it must
-then agree with `--units` when both are given. Run files: channels `table_u`
+may carry its unit in brackets (`u [in]`, as `sim response` and `sim generate`
+write); it must then agree with `--units` when both are given. Where neither
+names a unit, metres are assumed, and a column that spans more than a table can
+travel is refused with the unit it is likely in: inches read as metres fitted
+nonsense at exit 0. Run files carry their payload mass in their configuration:
+it is the isolated mass unless the user gives one, and a given mass a few per
+cent away from it is named in a warning. A run that did not end in success
+(never armed, e-stopped, failed) is skipped with a warning unless asked for.
+Run files: channels `table_u`
 and `mass_x` (metres), sampled by different sensors, so both are put on one
 uniform grid at the slower channel's rate over the time they share, laid on the
 mass sensor's own sampling instants: x, which output error fits sample by sample
@@ -45,17 +52,25 @@ from __future__ import annotations
 
 import csv
 import re
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from analysis.identify.pipeline import MeasuredRun
-from rig.errors import DataError
+from rig.config import MAX_STROKE, parse_config
+from rig.errors import ConfigError, DataError
 from rig.runfile import RunFile, check_readable, open_run
-from rig.units import to_si
+from rig.units import from_si, to_si
 
 UNITS = ("m", "in")
+UNIT_WORDS = {"m": "metres", "in": "inches"}
+# m: the farthest a table can travel, end to end of the actuators' ±MAX_STROKE; a CSV
+# read as metres that spans more is in another unit
+MAX_TABLE_TRAVEL = 2.0 * MAX_STROKE
+MASS_TOLERANCE = 0.03  # a given mass further than this from the run file's is named
+ENDED_EARLY = ("abort", "fail")  # exit statuses of a run that did not run its profile
 MIN_SAMPLES = 200  # the shortest ramp of interest (0.12 s) at 1 kHz plus rests
 MIN_DURATION = 0.2  # s
 JITTER = 0.01  # of the median step: a clock steadier than this is taken as uniform
@@ -78,31 +93,92 @@ class Loaded:
     warnings: list[str] = field(default_factory=list)
 
 
-def load_runs(paths: list[Path], mass: float, units: str | None = None) -> Loaded:
-    """Read every file (.h5/.hdf5 run files, anything else as CSV); mass in kg."""
-    if not (np.isfinite(mass) and mass > 0):
+def load_runs(paths: list[Path], mass: float | None = None, units: str | None = None,
+              include_aborted: bool = False) -> Loaded:
+    """Read every file (.h5/.hdf5 run files, anything else as CSV).
+
+    mass (kg): the isolated mass; None takes it from the run files' configuration
+    (CSV carries none). A run that did not end in success (never armed, e-stopped)
+    is skipped with a warning unless `include_aborted`.
+    """
+    if mass is not None and not (np.isfinite(mass) and mass > 0):
         raise DataError(f"mass must be a positive number of kg, got {mass}")
     out = Loaded()
     names: set[str] = set()
+    read: list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, tuple | None]] = []
+    file_masses: dict[Path, float] = {}
     for path in paths:
         path = Path(path)
         if not path.exists():
             raise DataError(f"{path}: no such file")
         table = None
         if path.suffix.lower() in (".h5", ".hdf5"):
-            t, u, x, table = _read_runfile(path, out.warnings)
+            run = _read_runfile(path, out.warnings, include_aborted)
+            if run is None:
+                continue
+            t, u, x, table, payload = run
+            if payload is not None:
+                file_masses[path] = payload
         else:
-            t, u, x = _read_csv(path, units)
+            t, u, x, assumed = _read_csv(path, units)
         t, u, x = _uniform(path, t, u, x, out.warnings)
         if path.suffix.lower() not in (".h5", ".hdf5"):  # run files: checked per channel
             for column, v in (("u", u), ("x", x)):
+                if assumed:
+                    _check_assumed_unit(path, column, v)
                 _check_speed(path, column, t, v, out.warnings)
-        name = _unique(path.stem, names)
+        read.append((path, t, u, x, table))
+    if not read:
+        raise DataError("no run to fit: every file was skipped (see the warnings above); "
+                        "--include-aborted fits runs that did not end in success")
+    kg = _isolated_mass(mass, file_masses, [r[0] for r in read], out.warnings)
+    for path, t, u, x, table in read:
         # a run file's two channels come by two paths: the table's own samples, a skew
-        out.runs.append(MeasuredRun(name, t, u, x, float(mass),
+        out.runs.append(MeasuredRun(_unique(path.stem, names), t, u, x, kg,
                                     skew_limit=RUNFILE_SKEW_LIMIT if table else 0.0,
                                     table_samples=table))
     return out
+
+
+def _isolated_mass(given: float | None, in_files: dict[Path, float], paths: list[Path],
+                   warnings: list[str]) -> float:
+    """The mass to fit with: the one given, else the run files' payload mass (one for all)."""
+    distinct = sorted(set(in_files.values()))
+    if len(distinct) > 1 and max(distinct) > (1 + MASS_TOLERANCE) * min(distinct):
+        listed = ", ".join(f"{p.name} {m:.1f} kg" for p, m in in_files.items())
+        if given is None:
+            raise DataError(f"the run files disagree on the payload mass ({listed}): one fit "
+                            "needs one mass; give --mass KG or --mass-lb LB")
+        warnings.append(f"the run files disagree on the payload mass ({listed}); using "
+                        f"--mass {given:.1f} kg")
+    if given is None:
+        if not in_files:
+            raise DataError("a base-excited fit needs the isolated mass: CSV files carry none "
+                            f"({', '.join(p.name for p in paths)}); give --mass KG or "
+                            "--mass-lb LB")
+        return float(next(iter(in_files.values())))
+    for p, m in in_files.items():
+        if abs(given / m - 1.0) > MASS_TOLERANCE:
+            warnings.append(f"{p}: --mass {given:.1f} kg ({from_si(given, 'lbm'):.1f} lb) "
+                            f"disagrees with the run file's payload mass {m:.1f} kg "
+                            f"({from_si(m, 'lbm'):.1f} lb); fitting with --mass")
+            break
+    return float(given)
+
+
+def _check_assumed_unit(path: Path, column: str, v: np.ndarray) -> None:
+    """Refuse a column read as metres (no unit given anywhere) that moves further than a
+    shaker table can: a file in inches read as metres fits nonsense at exit 0."""
+    span = float(np.ptp(v))
+    if span <= MAX_TABLE_TRAVEL:
+        return
+    likely = next((u for u in UNITS if u != "m" and to_si(span, u) <= MAX_TABLE_TRAVEL), None)
+    raise DataError(f"{path}: column {column} spans {span:.3g} m read as metres, more than "
+                    f"a shaker table travels ({MAX_TABLE_TRAVEL:g} m)" + (
+                        f": likely in {UNIT_WORDS[likely]} ({to_si(span, likely):.3g} m); "
+                        f"give --units "
+                        f"{likely} or write the unit in the header (e.g. '{column} [{likely}]')"
+                        if likely else "; give --units or the unit in the header"))
 
 
 def _unique(stem: str, taken: set[str]) -> str:
@@ -113,7 +189,9 @@ def _unique(stem: str, taken: set[str]) -> str:
     return name
 
 
-def _read_csv(path: Path, units: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _read_csv(path: Path, units: str | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """t, u, x (s, m) and whether the displacement unit was assumed (named nowhere)."""
     if units is not None and units not in UNITS:
         raise DataError(f"unknown units {units!r} (known: {', '.join(UNITS)})")
     try:
@@ -142,7 +220,8 @@ def _read_csv(path: Path, units: str | None) -> tuple[np.ndarray, np.ndarray, np
     out = [data["t"]]
     for c in ("u", "x"):
         out.append(np.asarray(to_si(data[c], _unit(path, c, columns[c][1], units)), float))
-    return out[0], out[1], out[2]
+    assumed = units is None and all(columns[c][1] is None for c in ("u", "x"))
+    return out[0], out[1], out[2], assumed
 
 
 def _unit(path: Path, column: str, header: str | None, given: str | None) -> str:
@@ -170,12 +249,19 @@ def _column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
     return values
 
 
-def _read_runfile(path: Path, warnings: list[str]
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                             tuple[np.ndarray, np.ndarray]]:
-    """x's grid t, u and x on it, and the table channel on its own uniform grid."""
+def _read_runfile(path: Path, warnings: list[str], include_aborted: bool = False):
+    """x's grid t, u and x on it, the table channel on its own uniform grid, and the
+    payload mass (kg) the run's configuration names (None if it names none); None for a
+    run skipped because it did not end in success."""
     check_readable(path, _read_channels)  # HDF5 may hang or crash on a damaged file
     run = _read_channels(path)
+    if run.status.state != "success" and run.status.state in ENDED_EARLY:
+        why = f"the run ended in {run.status.state}" + (
+            f" ({run.status.reason})" if run.status.reason else "")
+        if not include_aborted:
+            warnings.append(f"{path}: skipped: {why}; --include-aborted fits it")
+            return None
+        warnings.append(f"{path}: {why}; fitted as asked (--include-aborted)")
     if not run.status.complete:
         raise DataError(f"{path}: run is not complete (exit status {run.status.state}"
                         + (f": {run.status.reason}" if run.status.reason else "") + ")")
@@ -206,7 +292,16 @@ def _read_runfile(path: Path, warnings: list[str]
     t = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1)
     own = np.linspace(tu[0], tu[-1], round((tu[-1] - tu[0]) / float(np.median(np.diff(tu)))) + 1)
     return (t, np.interp(t, tu, cu.value), np.interp(t, tx, cx.value),
-            (own, np.interp(own, tu, cu.value)))
+            (own, np.interp(own, tu, cu.value)), _payload_mass(run))
+
+
+def _payload_mass(run: RunFile) -> float | None:
+    """kg: the payload mass of the configuration the run was made with."""
+    try:
+        doc = tomllib.loads(str(run.meta.get("configuration_toml", "")))
+        return float(parse_config(doc, str(run.path)).table.payload_mass)
+    except (tomllib.TOMLDecodeError, ConfigError, TypeError, ValueError, AttributeError):
+        return None  # a file written without its configuration: the mass must be given
 
 
 def _final_fit_times(t: np.ndarray) -> np.ndarray:
