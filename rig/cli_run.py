@@ -39,8 +39,14 @@ def add_parsers(sub: Any) -> None:
                    help=f"s between runs (default {DEFAULT_PAUSE_S:g})")
     p = sub.add_parser("runs", help="table of the run files in a directory")
     p.add_argument("directory", type=Path)
-    p = sub.add_parser("recover", help="make a run file whose writer died plainly readable")
-    p.add_argument("file", type=Path, help="the run file (.h5); repaired in place")
+    p = sub.add_parser(
+        "recover", help="make a run file whose writer died plainly readable",
+        description="Clear the 'open for write' flags a dead writer left, on a copy that "
+                    "is checked and then swapped in for the file atomically; mark the run "
+                    "crashed and incomplete, keeping every row flushed before it died; "
+                    "remove the dead writer's disk-space reserve (.NAME.h5.reserve).")
+    p.add_argument("file", type=Path,
+                   help="the run file (.h5); replaced by its recovered copy")
 
 
 def _profile_args(p: argparse.ArgumentParser) -> None:

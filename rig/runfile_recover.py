@@ -7,8 +7,9 @@ few milliseconds in which `close` reopens the file plainly to write the final
 status leaves a flag that even a SWMR read refuses. Either way the data on
 disk is consistent (SWMR orders its writes so that it always is), so we copy
 the file, clear the flags on the copy (what `h5clear -s -i` does), check it
-opens plainly as a run file, and swap it in atomically. The run keeps
-exit_status "running" with complete False, so readers report it as crashed.
+opens plainly as a run file, and swap it in atomically (in place, unless a
+destination is given). A run that died running gets exit_status "crashed" and
+complete False: the file then says what `rig runs` and every reader say of it.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import h5py
 from rig.errors import DataError
 from rig.runfile_io import one_line, reserve_path, writer_alive
 from rig.runfile_reader import check_layout, read_status
-from rig.runfile_schema import RUNNING
+from rig.runfile_schema import CRASHED, RUNNING
 from rig.runfile_superblock import clear_status_flags, status_flags
 from rig.runfile_tables import utc_now
 
@@ -37,6 +38,9 @@ def recover(path: str | os.PathLike[str], dest: str | os.PathLike[str] | None = 
     """
     path = Path(path)
     target = path if dest is None else Path(dest)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file" if not path.exists() else
+                        f"{path}: not a file")
     if writer_alive(path):
         raise DataError(f"{path}: its writer is still running; recover only after it has died")
     try:
@@ -73,6 +77,7 @@ def _mark_incomplete(original: Path, copy: Path) -> None:
             return  # died after writing its final status: nothing to add
         samples = {f"raw/{name}": ds.shape[0] for name, ds in f["raw"].items()}
         samples |= {name: ds.shape[0] for name, ds in f["channels"].items()}
+        f.attrs["exit_status"] = CRASHED
         f.attrs["complete"] = False
         f.attrs["reason"] = (
             "writer stopped without closing the file (crash or kill); "

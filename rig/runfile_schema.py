@@ -60,6 +60,8 @@ VALUE_DTYPES = frozenset(
 )
 EXIT_STATUSES = ("success", "abort", "fail")
 RUNNING = "running"
+# what `recover` writes over RUNNING: the file says what every reader says of it
+CRASHED = "crashed"
 BACKENDS = ("sim", "hardware")
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]{0,63}$")
 

@@ -156,10 +156,23 @@ def test_recover_makes_a_killed_run_plainly_readable(killed_run: tuple[Path, int
     with h5py.File(path, "r") as f:
         assert f["channels/table_u"].shape[0] == len(before) >= flushed
     status = read_status(path)
-    assert (status.state, status.complete) == ("crashed", False)
+    # the file itself says crashed, as every reader does: not "running" with a dead writer
+    assert (status.state, status.exit_status, status.complete) == ("crashed", "crashed", False)
+    with h5py.File(path, "r") as f:
+        assert f.attrs["exit_status"] == "crashed"
     assert "recovered" in status.reason
     np.testing.assert_array_equal(open_run(path).channels["table_u"].value, before)
     assert not (path.parent / f".{path.name}.reserve").exists()
+
+
+def test_recover_names_a_missing_file_on_one_line(tmp_path: Path, capsys) -> None:
+    from rig.cli import main
+
+    assert main(["recover", str(tmp_path / "gone.h5")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"rig: error: {tmp_path / 'gone.h5'}: no such file\n"
+    with pytest.raises(DataError, match="not a file"):
+        recover(tmp_path)
 
 
 # Stalls inside close() right after reopening the file plainly for the final status, so
