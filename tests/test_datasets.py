@@ -114,3 +114,21 @@ def test_missing_datasets_directory_is_a_one_line_error(tmp_path, capsys):
     assert main(["datasets", "emps", "--data-dir", str(tmp_path / "nowhere")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "no datasets directory" in err
+
+
+def test_datasets_are_found_from_an_installed_package(tmp_path, monkeypatch):
+    """An installed package's own path leads into site-packages: the data are found
+    from the environment or the working tree, and the error says where it looked."""
+    monkeypatch.setattr(ds, "SOURCE_TREE_DATA", tmp_path / "site-packages" / "nothing")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.delenv(ds.DATA_ENV, raising=False)
+    with pytest.raises(ds.DataError) as e:
+        ds.data_dir()
+    assert str(work / "shared" / "datasets") in str(e.value) and ds.DATA_ENV in str(e.value)
+    monkeypatch.setenv(ds.DATA_ENV, str(ROOT))
+    assert ds.data_dir() == ROOT.resolve()
+    monkeypatch.delenv(ds.DATA_ENV)
+    (tmp_path / "shared").symlink_to(ROOT.parent)  # shared/ beside the working directory
+    assert ds.data_dir() == (tmp_path / "shared" / "datasets").resolve()

@@ -21,6 +21,7 @@ returns the figures to set beside the published ones (docs/datasets.md):
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -33,8 +34,12 @@ from analysis.force_driven.prepare import prepare
 from analysis.force_driven.simulate import SKIP, initial_state, rms_error, simulate_position
 from rig.errors import DataError
 
-# shared/ sits beside the repository (CI clones the repo with shared/ next to it)
-DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "datasets"
+# where the datasets are looked for, after --data-dir: an environment variable, then
+# shared/datasets beside the working directory or the source tree (the repository sits
+# beside shared/). An installed package's own path leads into site-packages, so the
+# working tree is looked at first.
+DATA_ENV = "ISOLATOR_DATASETS"
+SOURCE_TREE_DATA = Path(__file__).resolve().parents[3] / "shared" / "datasets"
 
 EMPS_PUBLISHED = {  # benchmark description, IDIM-LS on DATA_EMPS (PROVENANCE.md)
     "symmetric": {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648,
@@ -55,11 +60,26 @@ SILVERBOX_CUTOFF = 250.0
 
 
 def data_dir(given: Path | None = None) -> Path:
-    path = Path(given) if given is not None else DEFAULT_DATA
-    if not path.is_dir():
-        raise DataError(f"{path}: no datasets directory (shared/datasets beside the repo, "
-                        "or --data-dir)")
-    return path
+    """The datasets directory: `given`, else the first of `candidate_dirs()` that exists."""
+    if given is not None:
+        if not Path(given).is_dir():
+            raise DataError(f"{given}: no datasets directory (--data-dir)")
+        return Path(given)
+    looked = candidate_dirs()
+    found = next((p for p in looked if p.is_dir()), None)
+    if found is None:
+        raise DataError("no datasets directory; looked in " + ", ".join(map(str, looked))
+                        + f": give --data-dir DIR or set {DATA_ENV}")
+    return found
+
+
+def candidate_dirs() -> list[Path]:
+    """Where the datasets may be, in the order they are looked for."""
+    env = os.environ.get(DATA_ENV)
+    cwd = Path.cwd()
+    out = [Path(env)] if env else []
+    out += [cwd / "shared" / "datasets", cwd.parent / "shared" / "datasets", SOURCE_TREE_DATA]
+    return list(dict.fromkeys(p.resolve() for p in out))
 
 
 @dataclass
@@ -222,7 +242,8 @@ def add_datasets_parser(sub) -> None:  # argparse._SubParsersAction
                                         "benchmarks, beside their published figures")
     p.add_argument("name", choices=(*NAMES, "all"), help="which benchmark")
     p.add_argument("--data-dir", type=Path, metavar="DIR",
-                   help=f"the datasets directory (default: {DEFAULT_DATA})")
+                   help=f"the datasets directory (default: ${DATA_ENV}, else shared/datasets "
+                        "beside the working directory or the source tree)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
 
 
