@@ -14,8 +14,8 @@ from typing import Any
 
 from rig import can_messages as cm
 from rig.config import RigConfig, load_config
-from rig.errors import ConfigError, DataError
-from rig.limits import check_all
+from rig.errors import ConfigError, DataError, LimitError
+from rig.limits import Margins, check_all, limit_error
 from rig.profile import BUILTIN, load_profile
 from rig.runfile import check_output_dir, check_readable, list_runs, read_status, recover
 from rig.runner import RunResult, run_profile
@@ -28,7 +28,7 @@ DEFAULT_PAUSE_S = 5.0
 def add_parsers(sub: Any) -> None:
     p = sub.add_parser("check", help="check a profile against every actuator limit; move nothing")
     _profile_args(p)
-    p.add_argument("--units", default="us", choices=("us", "si"))
+    _units_arg(p)
     p = sub.add_parser("run", help="run one profile on the table and log it to a run file")
     _profile_args(p)
     _run_args(p)
@@ -54,7 +54,13 @@ def _profile_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, help="rig TOML (default data/rig.toml)")
 
 
+def _units_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--units", default="us", choices=("us", "si"),
+                   help="units of what is printed: us (in, lb) or si (default us)")
+
+
 def _run_args(p: argparse.ArgumentParser) -> None:
+    _units_arg(p)
     p.add_argument("--out", type=Path, default=Path("runs"), help="directory (default ./runs)")
     p.add_argument("--yes", action="store_true", help="arm without asking")
     p.add_argument("--sim-arg", action="append", default=[], help=argparse.SUPPRESS)
@@ -70,7 +76,7 @@ def dispatch(args: argparse.Namespace) -> int | None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     config = load_config(args.config)
-    margins = check_all(config, load_profile(args.profile))  # LimitError → exit 2
+    margins = _checked(config, args.profile, args.units)  # LimitError → exit 2
     print(margins.format(args.units))
     print(cm.check_bus_load(config).format())
     return 0
@@ -86,7 +92,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         raise ConfigError("--pause", "", f"must be >= 0 s, got {args.pause}")
     config = load_config(args.config)
     for name in CAMPAIGN:  # all three before anything starts or moves
-        check_all(config, load_profile(name))
+        _checked(config, name, args.units)
     _output_dir(args.out)
     if config.backend != "sim":
         return _campaign(args, config)
@@ -119,12 +125,21 @@ def _one(args: argparse.Namespace, spec: str, config: RigConfig | None = None,
     config = config or load_config(args.config)
     profile = load_profile(spec)
     text = _profile_text(spec)
+    _checked(config, spec, args.units)  # refused before the output directory is made
     _output_dir(args.out)
     print(f"run {profile.name}: {profile.description or spec} ({profile.duration:.2f} s)")
     result = run_profile(config, profile, text, args.out, confirm=lambda: _confirm(args, spec),
                          progress=_say, sim_args=tuple(args.sim_arg), start_sim=start_sim)
     print(result.summary(), flush=True)
     return result
+
+
+def _checked(config: RigConfig, spec: str, units: str) -> Margins:
+    """`check_all`, its refusal naming the profile as given (the file, or A) in `units`."""
+    try:
+        return check_all(config, load_profile(spec))
+    except LimitError as e:
+        raise limit_error(e.margins, spec, units) from None
 
 
 def _confirm(args: argparse.Namespace, spec: str) -> bool:

@@ -2,7 +2,9 @@
 
 - RigError (a refused plan, a bad file: the message names the file and the
   problem), FileNotFoundError, KeyError and any other OSError (permission, a
-  directory given for a file, no space) → `prog: error: …`, exit 2.
+  directory given for a file, no space) → `prog: error: …`, exit 2. A refused
+  plan's violations follow, one per indented line: sixteen of them on one line
+  were unreadable.
 - Ctrl-C → `prog: interrupted`, exit 130 (a run in progress aborts in order
   first: rig.runner).
 - Anything else is a bug → `prog: internal error: Type: message` on one line,
@@ -16,7 +18,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 
-from rig.errors import RigError
+from rig.errors import LimitError, RigError
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -28,6 +30,12 @@ def guarded(main: Callable[[Sequence[str] | None], int], argv: Sequence[str] | N
     """Run `main(argv)`; turn every exception into one line on stderr and an exit code."""
     try:
         return main(argv)
+    except LimitError as e:  # its lines are deliberate: one violation each
+        head, *rest = str(e).splitlines() or [""]
+        code = _error(prog, "error", head, EXIT_USAGE)
+        for line in rest:
+            print(f"  {line}", file=sys.stderr)
+        return code
     except (RigError, FileNotFoundError, KeyError) as e:
         message = e.args[0] if isinstance(e, KeyError) and e.args else e
         return _error(prog, "error", str(message), EXIT_USAGE)

@@ -56,12 +56,14 @@ class Margin:
     def ok(self) -> bool:
         return self.peak <= self.limit
 
-    def describe(self, profile: str) -> str:
-        """`actuator 3 velocity 2.41 m/s exceeds servovalve limit 1.29 m/s (profile C, …)`."""
+    def describe(self, profile: str, units: str = "si") -> str:
+        """`actuator 3 velocity 2.41 m/s exceeds servovalve limit 1.29 m/s (profile C, …)`,
+        in SI or the report's US units (`units='us'`)."""
         verb = "within" if self.ok else "exceeds"
-        return (f"actuator {self.actuator} {self.quantity} {_fmt(self.peak, self.unit)} {verb} "
-                f"{self.rule} {_fmt(self.limit, self.unit)} "
-                f"(profile {profile}, t = {self.t:.3f} s)")
+        unit = self.unit if units == "si" else us_unit(self.unit)
+        peak, limit = (from_si(v, unit) for v in (self.peak, self.limit))
+        return (f"actuator {self.actuator} {self.quantity} {_fmt(peak, unit)} {verb} "
+                f"{self.rule} {_fmt(limit, unit)} (profile {profile}, t = {self.t:.3f} s)")
 
 
 @dataclass(frozen=True)
@@ -138,17 +140,23 @@ def plan_margins(config: RigConfig, plan: ActuatorPlan) -> Margins:
 def check_plan(config: RigConfig, plan: ActuatorPlan) -> Margins:
     """`plan_margins`, or LimitError listing every violation (first line summarises)."""
     margins = plan_margins(config, plan)
-    bad = margins.violations
-    if bad:
-        lines = [m.describe(plan.profile) for m in bad]
-        if len(bad) > 1:
-            actuators = sorted({m.actuator for m in bad})
-            lines.insert(0, f"profile {plan.profile}: {len(bad)} limit violations on actuators "
-                         f"{', '.join(map(str, actuators))}; nothing has moved")
-        error = LimitError("\n".join(lines))
-        error.margins = margins  # the whole table, for a display of what went wrong
-        raise error
+    if margins.violations:
+        raise limit_error(margins, plan.profile)
     return margins
+
+
+def limit_error(margins: Margins, profile: str, units: str = "si") -> LimitError:
+    """The LimitError for `margins`' violations: one line each, after a summary line
+    where there are several; `profile` names it as the user gave it (a file, or A)."""
+    bad = margins.violations
+    lines = [m.describe(profile, units) for m in bad]
+    if len(bad) > 1:
+        actuators = sorted({m.actuator for m in bad})
+        lines.insert(0, f"profile {profile}: {len(bad)} limit violations on actuators "
+                     f"{', '.join(map(str, actuators))}; nothing has moved")
+    error = LimitError("\n".join(lines))
+    error.margins = margins  # the whole table, for a display of what went wrong
+    return error
 
 
 def check_all(config: RigConfig, profile: Profile) -> Margins:

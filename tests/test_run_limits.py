@@ -129,7 +129,22 @@ def test_cli_run_refuses_before_starting_anything(tmp_path: Path,
     assert main(["run", "--profile", str(spec), "--yes", "--out", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err
     assert "actuator 1 stroke" in err and "exceeds stroke limit" in err
-    assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").iterdir())
+    assert not (tmp_path / "runs").exists()  # refused before the directory is made
+
+
+@pytest.mark.parametrize(("units", "peak", "limit"), [("us", "8.00 in", "7.00 in"),
+                                                      ("si", "0.2032 m", "0.1778 m")])
+def test_cli_check_lists_one_violation_per_line_in_the_units_asked(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], units: str, peak: str,
+        limit: str) -> None:
+    spec = profile_file(tmp_path, "too_far", 8.0, 2.0)
+    assert main(["check", "--profile", str(spec), "--units", units]) == 2
+    head, *lines = capsys.readouterr().err.splitlines()
+    assert head == (f"rig: error: profile {spec}: 4 limit violations on actuators 1, 2, 3, 4; "
+                    "nothing has moved")  # named by the file given, not its TOML name
+    assert len(lines) == 4
+    for i, line in enumerate(lines, start=1):
+        assert line.startswith(f"  actuator {i} stroke {peak} exceeds stroke limit {limit} ")
 
 
 def test_cli_runs_lists_files_with_status(sim: SimRig, tmp_path: Path,
