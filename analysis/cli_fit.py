@@ -12,8 +12,10 @@ from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_
 from analysis.identify.loading import UNITS, load_runs
 from analysis.identify.pipeline import IsolatorFit, identify
 from analysis.identify.report_format import fit_json, format_fit
-from analysis.loop import LoopRun, close_loop
+from analysis.loop import LoopResult, LoopRun, close_loop
 from analysis.loop.report import add_loop_section, format_loop, loop_json
+from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
+from analysis.simulate.compiled import warm_up
 from rig.errors import DataError
 from rig.units import to_si
 
@@ -53,6 +55,7 @@ def run_fit(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"analysis fit [{time.perf_counter() - start:5.1f} s] {message}", file=sys.stderr)
 
+    warm_up(progress)  # a fresh install compiles here, with a word, not silently mid-fit
     try:
         fit = identify(loaded.runs, refine_output_error=not args.no_refine, progress=progress)
     except ValueError as e:  # data the identification cannot use (e.g. no relative motion)
@@ -67,6 +70,7 @@ def run_fit(args: argparse.Namespace) -> int:
         doc = fit_json(fit)
         if loop is not None:
             doc = with_loop(doc, loop_json(loop))
+            doc[MODEL_KEY] = loop_model_json(loop)
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(doc, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")
@@ -85,6 +89,14 @@ def loop_runs(fit: IsolatorFit) -> list[LoopRun]:
     """The prepared runs as the loop reads them: the same input estimate and derivatives."""
     return [LoopRun(p.oe, p.oe.motion(p.oe.t, 1), p.zd, p.xdd, p.table.method)
             for p in fit.prepared]
+
+
+def loop_model_json(loop: LoopResult) -> dict:
+    """The model after the loop, effects included, with the covariance of its refit."""
+    f, h = loop.final, loop.final.hypothesis
+    added = ", ".join(loop.effects_added) or "none"
+    return model_json(h.model, f.names, covariance_from(f.std, f.correlation), h.sensor_gain,
+                      h.sensor_delay, source=f"closed loop, effects added: {added}")
 
 
 def with_loop(doc: dict, loop: dict) -> dict:

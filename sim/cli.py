@@ -7,24 +7,41 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.model.report_constants import RUNS
+from analysis.model.model_json import IdentifiedModel
+from analysis.model.report_constants import RUNS, report_model
+from analysis.predict import DRAWS, predict
 from rig.cli_support import guarded
+from rig.errors import DataError
 from sim import cli_generate, serve
-from sim.response import format_peaks, run_response, write_csv
+from sim.response import base_motion, format_prediction, read_model, write_csv, write_plot
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sim", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("response", help="noise-free response of the report's model to a run",
+    p = sub.add_parser("response", help="response of the report's or an identified model",
                        description="Simulate Eq 10 with dead band and static friction "
-                                   "(CERL TR M-226) for a base motion; print the peaks.")
-    p.add_argument("--run", default="A", help="A, B, C or a profile TOML file (default A)")
-    p.add_argument("--constants", default="average", choices=RUNS,
-                   help="Table 1 column to use (default average)")
+                                   "(CERL TR M-226), with Table 1's constants or an "
+                                   "identified model (effects included), for a base motion; "
+                                   "print the peaks, with an identified model's band.")
+    p.add_argument("--motion", "--run", dest="motion", default="A",
+                   help="A, B, C, a profile TOML file, or a CSV of the table displacement "
+                        "('t [s],u [in]') or base acceleration ('t [s],a [g]') (default A)")
+    model = p.add_mutually_exclusive_group()
+    model.add_argument("--constants", default="average", choices=RUNS,
+                       help="Table 1 column to use (default average)")
+    model.add_argument("--model", type=Path, metavar="FIT.json",
+                       help="the identified model of `analysis fit --json`")
+    p.add_argument("--band", type=float, default=95.0, metavar="PERCENT",
+                   help="with --model: band of the peaks from the fit's covariance "
+                        "(default 95; 0: none)")
+    p.add_argument("--draws", type=int, default=DRAWS,
+                   help=f"draws from the covariance for the band (default {DRAWS})")
+    p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     p.add_argument("--units", default="us", choices=("us", "si"),
                    help="report's units (in, lb, s) or SI (default us)")
     p.add_argument("--out", type=Path, help="write every sample to this CSV file")
+    p.add_argument("--plot", type=Path, metavar="PNG", help="write a figure of the response")
     cli_generate.add_parser(sub)
     serve.add_parser(sub)
     return parser
@@ -37,17 +54,35 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "response":
-        r = run_response(args.run, args.constants)
-        print(f"run {args.run}, Table 1 constants '{args.constants}', "
-              f"{r.t[-1]:.2f} s at {1 / (r.t[1] - r.t[0]):.0f} Hz")
-        print(format_peaks(r, args.units))
-        if args.out:
-            write_csv(r, args.out, args.units)
-            print(f"wrote {len(r.t)} samples to {args.out}")
+        return run_response_command(args)
     elif args.command == "generate":
         return cli_generate.run(args)
     elif args.command == "serve":
         return serve.run(args)
+    return 0
+
+
+def run_response_command(args: argparse.Namespace) -> int:
+    if not 0.0 <= args.band < 100.0:
+        raise DataError(f"--band is a percentage below 100, got {args.band}")
+    if args.model is not None:
+        identified = read_model(args.model)
+        what = f"identified model of {args.model} ({identified.source or 'no source'})"
+    else:
+        identified = IdentifiedModel(report_model(args.constants))
+        what = f"Table 1 constants '{args.constants}'"
+    drive = base_motion(args.motion)
+    p = predict(identified, drive, level=args.band if args.model else 0.0, draws=args.draws,
+                seed=args.seed)
+    r = p.response
+    print(f"{drive.source}; {what}; {r.t[-1] - r.t[0]:.2f} s at {1 / (r.t[1] - r.t[0]):.0f} Hz")
+    print(format_prediction(p, args.units))
+    if args.out:
+        write_csv(r, args.out, args.units)
+        print(f"wrote {len(r.t)} samples to {args.out}")
+    if args.plot:
+        write_plot(p, args.plot, args.units, f"{drive.source}\n{what}")
+        print(f"wrote {args.plot}")
     return 0
 
 

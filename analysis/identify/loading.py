@@ -58,6 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.identify.foreign import FOREIGN_SUFFIXES, read_foreign
 from analysis.identify.pipeline import MeasuredRun
 from rig.config import MAX_STROKE, parse_config
 from rig.errors import ConfigError, DataError
@@ -94,8 +95,10 @@ class Loaded:
 
 
 def load_runs(paths: list[Path], mass: float | None = None, units: str | None = None,
-              include_aborted: bool = False) -> Loaded:
-    """Read every file (.h5/.hdf5 run files, anything else as CSV).
+              include_aborted: bool = False, channels: tuple[str, str] | None = None
+              ) -> Loaded:
+    """Read every file (.h5/.hdf5 run files; .mf4/.mdf/.tdms by analysis.identify.foreign,
+    its u and x channels named by `channels`; anything else as CSV).
 
     mass (kg): the isolated mass; None takes it from the run files' configuration
     (CSV carries none). A run that did not end in success (never armed, e-stopped)
@@ -119,6 +122,8 @@ def load_runs(paths: list[Path], mass: float | None = None, units: str | None = 
             t, u, x, table, payload = run
             if payload is not None:
                 file_masses[path] = payload
+        elif path.suffix.lower() in FOREIGN_SUFFIXES:
+            t, u, x, assumed = read_foreign(path, channels, units, out.warnings)
         else:
             t, u, x, assumed = _read_csv(path, units)
         t, u, x = _uniform(path, t, u, x, out.warnings)
@@ -194,6 +199,24 @@ def _read_csv(path: Path, units: str | None
     """t, u, x (s, m) and whether the displacement unit was assumed (named nowhere)."""
     if units is not None and units not in UNITS:
         raise DataError(f"unknown units {units!r} (known: {', '.join(UNITS)})")
+    columns, rows = read_csv_table(path)
+    missing = [c for c in ("t", "u", "x") if c not in columns]
+    if missing:
+        raise DataError(f"{path}: no column {', '.join(repr(c) for c in missing)} (columns: "
+                        f"{', '.join(columns)}; base-excited CSV needs t, u, x)")
+    data = {c: csv_column(path, rows, columns[c][0], c) for c in ("t", "u", "x")}
+    if columns["t"][1] not in (None, "s"):
+        raise DataError(f"{path}: time must be in s, header says {columns['t'][1]!r}")
+    out = [data["t"]]
+    for c in ("u", "x"):
+        out.append(np.asarray(to_si(data[c], _unit(path, c, columns[c][1], units)), float))
+    assumed = units is None and all(columns[c][1] is None for c in ("u", "x"))
+    return out[0], out[1], out[2], assumed
+
+
+def read_csv_table(path: Path) -> tuple[dict[str, tuple[int, str | None]], list[list[str]]]:
+    """A CSV's header as column name (lower case) → (index, unit in brackets or None),
+    and its data rows; DataError, naming the file, for anything unreadable."""
     try:
         with open(path, newline="", encoding="utf-8") as f:
             rows = list(csv.reader(f))
@@ -205,23 +228,9 @@ def _read_csv(path: Path, units: str | None
         raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
     if not rows:
         raise DataError(f"{path}: empty file")
-    columns = {}
-    for i, h in enumerate(rows[0]):
-        m = HEADER.match(h)
-        if m:
-            columns[m.group(1).lower()] = (i, m.group(2))
-    missing = [c for c in ("t", "u", "x") if c not in columns]
-    if missing:
-        raise DataError(f"{path}: no column {', '.join(repr(c) for c in missing)} (columns: "
-                        f"{', '.join(rows[0])}; base-excited CSV needs t, u, x)")
-    data = {c: _column(path, rows[1:], columns[c][0], c) for c in ("t", "u", "x")}
-    if columns["t"][1] not in (None, "s"):
-        raise DataError(f"{path}: time must be in s, header says {columns['t'][1]!r}")
-    out = [data["t"]]
-    for c in ("u", "x"):
-        out.append(np.asarray(to_si(data[c], _unit(path, c, columns[c][1], units)), float))
-    assumed = units is None and all(columns[c][1] is None for c in ("u", "x"))
-    return out[0], out[1], out[2], assumed
+    columns = {m.group(1).lower(): (i, m.group(2))
+               for i, h in enumerate(rows[0]) if (m := HEADER.match(h))}
+    return columns, rows[1:]
 
 
 def _unit(path: Path, column: str, header: str | None, given: str | None) -> str:
@@ -233,7 +242,8 @@ def _unit(path: Path, column: str, header: str | None, given: str | None) -> str
     return header or given or "m"
 
 
-def _column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
+def csv_column(path: Path, rows: list[list[str]], i: int, name: str) -> np.ndarray:
+    """Column i of the data rows as finite floats; DataError naming the row otherwise."""
     values = np.empty(len(rows))
     for k, row in enumerate(rows):
         try:

@@ -9,6 +9,7 @@ import numpy as np
 
 from analysis.identify.output_error import Z95
 from analysis.identify.pipeline import IsolatorFit
+from analysis.model.model_json import MODEL_KEY, model_json
 from analysis.model.terms import kind
 from rig.units import from_si, us_unit
 
@@ -114,7 +115,11 @@ def fit_json(fit: IsolatorFit) -> dict:
     model = [{"name": t.name, "kind": t.kind, "formula": kind(t.kind).formula,
               "gated_by_dead_band": t.is_gated} for t in fit.model.terms]
     a, p = fit.appendix_a, fit.projection
+    estimated = fit.joint if fit.joint is not None else p.fit  # what `values_std` reports
     return {"parameters": params, "runs": runs, "error": error, "model": model,
+            # the model to predict with (`sim response --model`): analysis/model/model_json.py
+            MODEL_KEY: model_json(fit.model, estimated.names, estimated.covariance,
+                                  source=fit.estimate),
             "estimate": fit.estimate, "held": list(fit.held), "flagged_runs": fit.flagged,
             # held constants: the range of values the runs cannot tell apart (SI)
             "consistent_range": {n: list(r) for n, r in
