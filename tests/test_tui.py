@@ -14,7 +14,6 @@ import asyncio
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -27,26 +26,18 @@ from rig.tui.app import RigApp
 from rig.tui.confirm import ArmScreen
 from rig.tui.fit_job import FitJob, summarize
 from rig.tui.run_screen import RunScreen
-from rig.tui.sim_host import SimHost
 from rig.tui.trace_screen import TraceScreen
 from tests.test_run_limits import profile_file
-from tests.test_tui_support import FIT_DOC, BusWatch, stand_in_fit, write_run
+from tests.test_tui_support import FIT_DOC, BusWatch, bench_sim, stand_in_fit, write_run
 
 SIZE = (80, 24)
 
 
 @pytest.fixture(scope="module")
 def rig() -> Iterator[RigConfig]:
-    """The default configuration pointed at a `sim serve` process, as if it were the bench.
-
-    Started as `rig tui` starts it (rig.tui.sim_host): in a session of its own, so it
-    does not share this process's CPU share (autogroup) with the display under test.
-    """
-    sim = SimHost(load_config())
-    try:
-        yield replace(sim.config, backend="hardware")
-    finally:
-        sim.stop()
+    """The default configuration pointed at one `sim serve` for the module (bench_sim)."""
+    with bench_sim() as config:
+        yield config
 
 
 async def until(pilot, condition: Callable[[], bool], timeout: float = 20.0) -> None:

@@ -10,7 +10,9 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import can
@@ -18,10 +20,11 @@ import numpy as np
 
 from rig import can_messages as cm
 from rig.can_messages import Command, CommandKind, Feedback, NodeState
-from rig.config import RigConfig
+from rig.config import RigConfig, load_config
 from rig.errors import DataError
 from rig.runfile import RunInfo, RunWriter, list_runs
 from rig.tui.fit_job import Command as FitCommand
+from rig.tui.sim_host import SimHost
 
 #: the shape of `analysis fit --json` (values from a real fit of runs A, B, C)
 _ERR = {"20261123T141108_A": (21.68469477914084, 15.907012235883517),
@@ -48,6 +51,20 @@ FIT_DOC: dict = {
     "error_after": {r: {"residual_over_noise": a} for r, (_, a) in _ERR.items()},
     "unexplained": {"value": True, "description": "residual 34.21 x the sensor noise"},
 }
+
+
+@contextmanager
+def bench_sim() -> Iterator[RigConfig]:
+    """The default configuration pointed at a `sim serve` process, as if it were the bench.
+
+    Started as `rig tui` starts it (rig.tui.sim_host): in a session of its own, so it
+    does not share this process's CPU share (autogroup) with the display under test.
+    """
+    sim = SimHost(load_config())
+    try:
+        yield replace(sim.config, backend="hardware")
+    finally:
+        sim.stop()
 
 
 def stand_in_fit(tmp_path: Path) -> FitCommand:

@@ -1,8 +1,10 @@
 """The real `rig tui` in a real terminal: tmux at 80 x 24, keys sent, the screen read back.
 
 Start, arm and run profile A on the simulated rig (`sim serve`, started by the
-TUI itself as with `backend = "sim"`), see the summary, quit; the run file must
-say success. tmux is required: without it this test fails (CI installs it).
+TUI itself as with `backend = "sim"`), see the summary; then a long profile typed
+into Setup's path box, armed, and e-stopped with space from inside that box (the
+keys of issue 18); quit. The run files must say success, then abort. tmux is
+required: without it this test fails (CI installs it).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from rig.runfile import open_run
+from tests.test_run_limits import profile_file
 
 COLD_START_S = 90.0  # a cold numba cache compiles the simulator first (~15 s, slower loaded)
 
@@ -59,7 +62,8 @@ class Tmux:
 
 
 @pytest.mark.slow
-def test_run_profile_a_in_tmux_see_the_summary_and_quit(tmp_path: Path) -> None:
+def test_run_profile_a_in_tmux_see_the_summary_estop_from_the_path_box_and_quit(
+        tmp_path: Path) -> None:
     assert shutil.which("tmux"), "tmux is needed for this test; .ci/run installs it"
     out = tmp_path / "runs"
     command = (f"cd {shlex.quote(str(Path(__file__).parent.parent))} && "
@@ -76,9 +80,29 @@ def test_run_profile_a_in_tmux_see_the_summary_and_quit(tmp_path: Path) -> None:
         tmux.keys("y")
         summary = tmux.wait_for("success in", COLD_START_S, failed=("ABORT", "FAILED"))
         assert "SUCCESS" in summary and "table_u" in summary
+        long = profile_file(tmp_path, "long", 1.0, 8.0)
+        tmux.keys("1", "Down", "Down", "Down", "Enter")  # file…, into its box
+        box = "esc Leave box (space: E-STOP in a run)"  # the footer while in a text box
+        tmux.wait_for(box, 10)  # (keys sent before the focus moves still go to the list)
+        tmux.keys("-l", str(long))
+        tmux.keys("Enter", "Escape")  # load it; Esc: back to the profile list
+        tmux.wait_for("a Arm space E-STOP", 10)
+        assert "profile long" in tmux.screen()
+        tmux.keys("a")
+        tmux.wait_for("ARM THE TABLE?", 10)
+        tmux.keys("y")
+        tmux.wait_for("long  running", 30, failed=("ABORT", "FAILED"))
+        tmux.keys("1", "Enter")  # Setup, into the path box…
+        tmux.wait_for(box, 5)
+        tmux.keys("Space")  # …and the e-stop from there
+        stopped = tmux.wait_for("abort in", 15)
+        assert "ABORT" in stopped
         tmux.keys("q")
         tmux.wait_for("EXITED 0", 30)
     finally:
         tmux.kill()
     (path,) = out.glob("*_A.h5")
     assert open_run(path).status.exit_status == "success"
+    (path,) = out.glob("*_long.h5")
+    status = open_run(path).status
+    assert status.exit_status == "abort" and "emergency stop" in status.reason

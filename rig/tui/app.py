@@ -3,7 +3,8 @@
 The app owns the session state the screens share: the configuration and its
 simulated rig (`session`), the chosen profile (`choice`), the run in progress
 (`job`), the fit in progress (`fit`), the runs marked for a fit and the display
-units. The e-stop, arm and quit actions live here so they work on every screen.
+units. The e-stop, arm and quit actions live here so they work on every screen;
+the e-stop key is taken in `on_event`, before any screen or widget, while a run is live.
 """
 
 from __future__ import annotations
@@ -12,11 +13,11 @@ import time
 from pathlib import Path
 from typing import ClassVar
 
+from textual import events
 from textual.app import App
 from textual.binding import Binding
 from textual.reactive import reactive
 from textual.screen import Screen
-from textual.widgets import Input
 from textual.worker import Worker, WorkerState
 
 from rig.config import RigConfig
@@ -33,6 +34,7 @@ from rig.tui.session import BenchSession
 from rig.tui.setup_screen import SetupScreen
 
 ENDED = (WorkerState.SUCCESS, WorkerState.ERROR, WorkerState.CANCELLED)
+ESTOP_KEY = "space"  # the e-stop, on every screen, widget and modal (docs/tui.md)
 
 
 class RigApp(App[None]):
@@ -50,13 +52,15 @@ class RigApp(App[None]):
         "setup": SetupScreen, "run": RunScreen, "runs": RunsScreen, "results": ResultsScreen}
     DEFAULT_MODE = "setup"
     BINDINGS: ClassVar[list[Binding]] = [
-        Binding("space", "estop", "E-STOP", priority=True, key_display="space"),
+        Binding(ESTOP_KEY, "estop", "E-STOP", priority=True, key_display="space"),
         Binding("1", "switch_mode('setup')", "Setup"),
         Binding("2", "switch_mode('run')", "Run"),
         Binding("3", "switch_mode('runs')", "Runs"),
         Binding("4", "switch_mode('results')", "Fit"),
         Binding("u", "toggle_units", "in/m"),
         Binding("q", "quit", "Quit"),
+        # shown only while a text box has the keys (the footer then loses every letter key)
+        Binding("escape", "leave_box", f"Leave box ({ESTOP_KEY}: E-STOP in a run)"),
     ]
 
     units: reactive[str] = reactive("us")  # "us": in, lb (the report's); "si": m, N
@@ -120,20 +124,56 @@ class RigApp(App[None]):
 
     # -- e-stop and quitting ------------------------------------------------------------
 
+    async def on_event(self, event: events.Event) -> None:
+        """While a run is live, the e-stop key goes to `action_estop` before anything else.
+
+        The `space` binding (priority) alone is not enough: Textual drops every binding
+        of a printable key, priority ones too, while the focused widget would type it
+        (`check_consume_key`: Input, TextArea, a Select's type-to-search; see
+        Screen._binding_chain), so space in Setup's path box was typed and the run went
+        on. Neither `check_action` nor SkipAction can help a binding that was dropped,
+        and a text box of our own that gives the key back would cover only that box.
+        Here the App gets the key from the terminal, before bindings, screens (modal
+        or not) and widgets: nothing can consume it. From arming until the run file is
+        closed the key is only the e-stop, whatever has focus (a space lost from a path
+        is nothing beside a run that cannot be stopped). Idle it goes on as usual: a
+        text box types it, elsewhere the binding says no run is in progress.
+        """
+        if (isinstance(event, events.Key) and event.key == ESTOP_KEY
+                and not event.is_forwarded and self.running):
+            event.stop()
+            event.prevent_default()
+            self.action_estop()
+            return
+        await super().on_event(event)
+
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
-        if action == "estop" and not self.running and isinstance(self.focused, Input):
-            return False  # idle: let a typed space reach the file-name box
         if action == "restart_sim":
             return self.session.simulated and not self.running
+        if action == "leave_box":
+            return self.in_text_box  # hidden, and Esc left to others, anywhere else
         return True
+
+    @property
+    def in_text_box(self) -> bool:
+        """The focused widget types what it is given (Input, TextArea…), the e-stop key too."""
+        focused = self.focused
+        return focused is not None and focused.check_consume_key(ESTOP_KEY, " ")
+
+    def action_leave_box(self) -> None:
+        """Esc in a text box: focus goes back to the form (the widget before it: on Setup,
+        the profile list); Tab still moves on."""
+        self.screen.focus_previous()
 
     def action_estop(self) -> None:
         """Abort the run into the safe state now (RunControl.emergency_stop, thread-safe)."""
         if self.job is None or not self.job.running:
             self.notify("E-STOP: no run in progress, the table is not being driven")
             return
-        self.job.stop()
-        self.notify("E-STOP: safe state commanded, run closing as abort", severity="error")
+        first = self.job.stopped_at is None
+        self.job.stop()  # a repeat (key held down) sends it again: harmless, no new notice
+        if first:
+            self.notify("E-STOP: safe state commanded, run closing as abort", severity="error")
         if self.current_mode != "run":
             self.switch_mode("run")
 
