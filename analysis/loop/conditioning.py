@@ -19,6 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.identify.regressors import campaign_regressors
+from analysis.loop.candidates import CANDIDATES
+from analysis.loop.refit import Fit
+from analysis.loop.runs import LoopRun, predicted_states
 from analysis.model.isolator import IsolatorModel
 
 # Below this share of its pattern outside the model's span (|correlation| > 0.9995,
@@ -71,6 +74,20 @@ def collinearities(model: IsolatorModel, terms: Sequence[tuple[str, str]],
     in_use = [i for i, t in enumerate(model.terms) if t.coef != 0.0]
     return [_unique_part(Z, names, [i for i in in_use if i != names.index(name)],
                          names.index(name), candidate) for candidate, name in terms]
+
+
+def candidate_collinearities(fit: Fit, runs: Sequence[LoopRun]
+                             ) -> tuple[Collinearity, ...]:
+    """How much of each force candidate not in the model its fitted terms can reproduce,
+    along the final fit's motion: where nearly all, no refit could have named it."""
+    model, terms = fit.hypothesis.model, []
+    for c in CANDIDATES.values():
+        if c.term_kind:
+            model, name = c.add_to(model)  # every candidate at zero: one regressor matrix
+            if model.parameters()[name] == 0.0:
+                terms.append((c.name, name))
+    z, zd = predicted_states(fit, runs)
+    return tuple(collinearities(model, terms, z, zd, runs[0].data.dt))
 
 
 def _unique_part(Z: np.ndarray, names: list[str], others: list[int], j: int,

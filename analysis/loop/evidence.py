@@ -17,6 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from analysis.loop.refit import Fit
+from analysis.loop.runs import LoopRun, predicted_states
+
 MAX_LAG = 20  # samples: 20 ms at 1 kHz, past the table's fastest ramp
 BINS = 8
 BANDS = ((0.0, 2.0), (2.0, 10.0), (10.0, 50.0), (50.0, np.inf))  # Hz
@@ -71,6 +74,12 @@ def diagnose(residuals: Sequence[np.ndarray], z: Sequence[np.ndarray],
         ljung_box_p=float(chi2.sf(q, MAX_LAG)), correlation_bound=1.96 / np.sqrt(n),
         cross=cross, region_text=concentration(r, np.concatenate(z), np.concatenate(zd)),
         band_text=f"{top}: {100 * power[top]:.0f} % of the residual power", band_power=power)
+
+
+def diagnose_fit(fit: Fit, runs: Sequence[LoopRun]) -> Diagnosis:
+    """`diagnose` of a fit's residual against the states along its prediction of the runs."""
+    z, zd = predicted_states(fit, runs)
+    return diagnose(fit.residuals, z, zd, [r.ud for r in runs], runs[0].data.dt)
 
 
 def autocorrelation(residuals: Sequence[np.ndarray]) -> np.ndarray:

@@ -9,6 +9,9 @@ size, so signed effects (an offset, a delay, a viscosity that falls) fit as
 easily as positive ones, and returns the covariance from the Jacobian with the
 residual's autocorrelation accounted for: residual samples 1 ms apart are not
 independent, and pretending they were would make every effect "significant".
+The loop's refits (`refit_free`) size and bound each parameter by what it is: a
+candidate by its typical size, Eq 10's constants by their values (a dead band the base
+fit closed free to open again).
 
 The score test asks, from the fitted Jacobian alone, how much a candidate
 parameter added at zero would reduce the residual after every fitted
@@ -28,13 +31,15 @@ from scipy.optimize import least_squares
 
 from analysis.identify.output_error import RunData, start_state
 from analysis.identify.regressors import state_after
-from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS
+from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS, Candidate
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import BOUC_WEN
 from analysis.simulate import RunSetup, simulate_batch, simulate_runs
 
 UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
 FD_STEP = 3e-3  # of a parameter's size: above the integrator's noise, below curvature
+DEAD_BAND_BOUNDS = (1e-5, 0.1)  # m, where a refit frees δ
+DEAD_BAND_SCALE = 1e-3  # m
 
 
 @dataclass(frozen=True)
@@ -224,6 +229,28 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     corr[~np.isfinite(corr)] = np.nan  # a constant the data do not determine: no correlation
     corr = np.clip(corr, -1.0, 1.0)  # a clamped tiny variance must not read as |ρ| > 1
     return Fit(fitted, names, values, std, corr, tuple(per_run), J, scales, int(sol.nfev))
+
+
+def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
+               candidates: dict[str, Candidate], fit_runs: Sequence[int] | None = None,
+               max_nfev: int = 40) -> Fit:
+    """`refit` of the free parameters `names`, each at its size and within its bounds: a
+    candidate's parameter (`candidates`, keyed by parameter) by its physics, the dead
+    band within DEAD_BAND_BOUNDS, every other constant within 1/50 to 50 times its value."""
+    scales, bounds = [], []
+    for n in names:
+        if n in candidates:
+            c = candidates[n]
+            scales.append(c.typical(h.model))
+            bounds.append(c.bounds(h.model))
+        elif n == "delta":  # may have been closed by the base fit: free to open again
+            scales.append(max(abs(h.value(n)), DEAD_BAND_SCALE))
+            bounds.append(DEAD_BAND_BOUNDS)
+        else:
+            v = abs(h.value(n))
+            scales.append(v)
+            bounds.append((0.02 * v, 50.0 * v))
+    return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
 
 
 class _Evaluator:

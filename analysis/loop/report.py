@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.loop.close import LoopResult, Step
 from analysis.loop.refit import Fit
+from analysis.loop.result import LoopResult, Step
 
 # the model's own term coefficients are reported with the loop's effects
 UNIT_OF_SENSOR = {"sensor_gain": "1", "sensor_delay": "s"}

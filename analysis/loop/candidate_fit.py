@@ -1,0 +1,244 @@
+"""The named candidate refitted by output error from several starts; the best is kept.
+
+Output error's cost is many-valleyed (where the mass sticks, and where it rests in
+the dead band, move in steps with a constant), and the base fit has soaked up what
+the missing effect does into Eq 10's constants, so a refit from the base fit alone
+can stay in the base fit's valley. The starts, in order: appendix A's least-squares
+solution with the candidate's column (it has no valleys); where the refit from it
+does not reach the noise, the model identified again by equation error with the
+candidate in it, α, β and δ searched (`reidentify`), and the best of a scan of
+sizes and the score's estimate; where still none does, the constants the loop was
+given (`refit_from_start`). A refit with the dead band and stop velocity free that
+stays above the noise is done again with them held, and the better kept.
+
+Whether the best refit is kept is `judge`'s to decide.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from analysis.identify.output_error import RunData
+from analysis.identify.regressors import campaign_regressors
+from analysis.loop.candidates import Candidate
+from analysis.loop.refit import Fit, Hypothesis, Score, predict, refit_free
+from analysis.loop.reidentify import (
+    Reidentified,
+    base_projection,
+    moving_data,
+    with_candidate,
+)
+from analysis.loop.runs import LoopRun
+from analysis.model.isolator import IsolatorModel
+from analysis.model.terms import kind
+
+BASE_FREE = ("k1", "k2", "c1", "c2", "alpha", "beta")
+LINEAR = ("k1", "k2", "c1", "c2")
+NOISE_LEVEL = 1.05  # residual/noise at or below which the model is "at the noise"
+ABSENT = 1e-6  # a nonlinear coefficient this fraction of its linear one: the term is absent
+STOP = ("delta", "epsilon")  # dead band and stop velocity: freed, or held, together
+SHAPE_CONSTANTS = ("alpha", "beta", *STOP)
+
+
+def constants_present(model: IsolatorModel) -> list[str]:
+    """The constants of Eq 10 the model has: a term fitted to nothing (k2 tanh(αz) at
+    1e-8 N/m beside k1 at 1e5 N/m, where the base fit closed it) is absent, and its
+    shape constant is not free either (its Jacobian column is nil, and the look-alike
+    check read a cubic spring as α at correlation 1.000)."""
+    p = model.parameters()
+    free = [n for n in BASE_FREE if n in p and p[n] != 0.0]
+    for coef, shape, base in (("k2", "alpha", "k1"), ("c2", "beta", "c1")):
+        if coef in free and abs(p[coef]) <= ABSENT * abs(p.get(base, 0.0)):
+            free = [n for n in free if n not in (coef, shape)]
+    return free
+
+
+def reidentify_candidates(h: Hypothesis, runs: Sequence[LoopRun],
+                          scores: Sequence[tuple[Score, Candidate, Hypothesis]]
+                          ) -> dict[str, Reidentified]:
+    """Each force candidate identified by equation error with α, β, δ searched
+    (`reidentify`), and under "" the model as it is, identified the same way."""
+    if any(r.zd is None or r.xdd is None for r in runs) or any(
+            kind(t.kind).has_state for t in h.model.terms):
+        return {}  # a term with a state (added on an earlier step) is no regressor
+    data = moving_data([r.data.x - r.data.motion(r.data.t) for r in runs],
+                       [r.zd for r in runs], [r.xdd for r in runs], h.model.stop_velocity)
+    out = {"": base_projection(h.model, data)}
+    if not np.isfinite(out[""].sigma2) or out[""].sigma2 <= 0:
+        return {}
+    for s, c, cand_h in scores:
+        again = with_candidate(cand_h.model, c, s.name, data)
+        if again is not None:
+            out[c.name] = again
+    return out
+
+
+def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score,
+                    c: Candidate, cand_h: Hypothesis, again: Reidentified | None = None
+                    ) -> tuple[Score, Candidate, Hypothesis, list[float], Fit]:
+    """The candidate refitted with every free constant from its starts; the best of them.
+
+    Appendix A's solution comes first: it has no valleys, and where the refit from it
+    reaches the noise, the scan of sizes is not needed (on the confusion suite the
+    scan's start then never ended more than 0.001 σ lower, and took up to 40
+    iterations to get there).
+    """
+    data = [r.data for r in runs]
+    names = free + [s.name] + c.shape_parameters(cand_h.model)
+    fits = [_refit_both(h0, data, names, {s.name: c})
+            for h0 in _equation_error_start(cand_h, runs, s.name, c)]
+    if again is not None and (not fits or fits[0].residual_over_noise > NOISE_LEVEL):
+        # the model identified again with the candidate in it, α, β and δ searched
+        # (`reidentify`): the base fit's compromise never seen. The dead band is refitted
+        # from there too: a base fit that closed it to mimic a dry friction cannot
+        # open it again otherwise
+        h0 = Hypothesis(again.model, cand_h.sensor_gain, cand_h.sensor_delay)
+        # the terms of Eq 10 are those the identification with the candidate finds: a
+        # k2 tanh(αz) the base fit closed may come back beside a cubic spring
+        own = [*constants_present(again.model), *(n for n in names if n not in BASE_FREE), "delta"]
+        fits.append(_refit_both(h0, data, list(dict.fromkeys(own)), {s.name: c}))
+    sizes: list[float] = []
+    if not fits or fits[0].residual_over_noise > NOISE_LEVEL:
+        sizes = _starts(cand_h, data, s, c)
+        fits += [refit_free(cand_h.with_values({s.name: v}), data, names, {s.name: c})
+                 for v in sizes]
+    return s, c, cand_h, sizes, min(fits, key=lambda f: f.rss)
+
+
+def refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: list[str],
+                     s: Score, c: Candidate, sizes: list[float], data: Sequence[RunData],
+                     progress: Callable[[str], None]) -> Fit:
+    """The best of the candidate's refit `cf` and refits from the loop's start model."""
+    lo, hi = c.bounds(h.model)
+    values = [float(np.clip(s.predicted_value, lo, hi))]
+    values += [v for v in sizes if _distinct(v, values)]
+    starts = _from_start(start, h, free, s.name, values)
+    if starts:
+        progress(f"loop: refitting with {c.name} from the starting constants")
+    names = free + [s.name] + c.shape_parameters(h.model)
+    return min([cf] + [_refit_both(h0, data, names, {s.name: c}) for h0 in starts],
+               key=lambda f: f.rss)
+
+
+def _refit_both(h: Hypothesis, data, names, candidates: dict[str, Candidate]) -> Fit:
+    """The refit of `names`, and, where that stays above the noise, the better of it and
+    the refit from the same start with δ and ε held.
+
+    A base fit that absorbed an effect has moved the dead band and the stop velocity
+    too, and only with them free does the effect's refit reach the noise (a hardening
+    spring on an unseen campaign: 18.7 x noise with them held, 1.04 x free); along a
+    stick–slip cliff, though, freeing them can walk into another valley, so where the
+    refit stays above the noise the held one is tried too."""
+    fit = refit_free(h, data, names, candidates)
+    held = [n for n in names if n not in STOP]
+    if fit.residual_over_noise <= NOISE_LEVEL or len(held) == len(names):
+        return fit
+    return min((fit, refit_free(h, data, held, candidates)), key=lambda f: f.rss)
+
+
+def _from_start(start: Hypothesis | None, h: Hypothesis, free: Sequence[str], name: str,
+                values: Sequence[float]) -> list[Hypothesis]:
+    """A start from the constants the loop was given, with the candidate at `value`.
+
+    The base refit lets its constants soak up what the missing effect does (a force
+    offset moves k1, k2 tanh(αz) and the damping to shift where the mass rests), and a
+    refit from there with the effect added can stay in that valley: 16.7 σ for a
+    181 N offset where the truth fits at 1.01 σ. The constants the loop started from
+    never absorbed it. Effects added on earlier steps keep their fitted values.
+
+    The candidate starts at the score's estimate and at the scan's best size (when they
+    differ by more than a factor of two): along the offset the cost is rugged (where
+    the mass rests against the dead band's edge moves in steps); on seed 1 a start at
+    137.44 N ends at 1.19 σ, at 137.4386 N at 8.16 σ, at 30 N 1.35 σ, at 100 N 2.14 σ.
+    """
+    if start is None:
+        return []
+    base = {n: start.value(n) for n in free if n in BASE_FREE}
+    # δ and ε both as the base refit left them and as given: from the refit's a Bouc–Wen
+    # refit stayed at 3.5 x noise (1.5 x from the given ones), a force offset's at 1.2 x
+    # (4.2 x from the given ones)
+    shapes = {n: start.value(n) for n in free if n in SHAPE_CONSTANTS}
+    moved = any(shapes[n] != h.value(n) for n in shapes)
+    return [h.with_values({**base, **extra, name: v}) for v in values
+            for extra in ([{}, shapes] if moved else [{}])]
+
+
+SCAN = (0.3, 1.0, 3.0, 10.0, 30.0)  # multiples of the typical size tried as starts
+
+
+def _distinct(v: float, others: Sequence[float]) -> bool:
+    """True when size v differs from each of `others` by more than a factor of two."""
+    return all(abs(v) > 2 * abs(o) or abs(o) > 2 * abs(v) for o in others)
+
+
+def _starts(h: Hypothesis, data, s: Score, c: Candidate, keep: int = 1) -> list[float]:
+    """Starts for a candidate's refit: the best `keep` of the score's estimate and a scan.
+
+    Friction and dead band make the cost many-valleyed along an effect's size (where
+    the mass sticks moves in steps), so one linearised estimate can start the refit in
+    the wrong valley; one batch of simulations per run checks a few sizes, and the
+    refit starts from the best (several: the best that differ by a factor of two).
+    """
+    lo, hi = c.bounds(h.model)
+    signs = (c.sign,) if c.sign else (1.0, -1.0)
+    trial = [s.predicted_value] + [g * m * c.typical(h.model) for g in signs for m in SCAN]
+    trial = np.clip(np.array(trial, float), lo, hi)
+    pred = predict(h, data, (s.name,), trial[:, None])
+    with np.errstate(over="ignore", invalid="ignore"):
+        cost = sum(np.sum(((p - d.x) / d.sigma_x) ** 2, axis=1) for p, d in zip(pred, data))
+    cost = np.where(np.isfinite(cost), cost, np.inf)  # an unstable trial: damping gone negative
+    starts: list[float] = []
+    for i in np.argsort(cost):
+        v = float(trial[i])
+        if np.isfinite(cost[i]) and _distinct(v, starts):
+            starts.append(v)
+        if len(starts) == keep:
+            break
+    return starts or [0.0]
+
+
+def _equation_error(h: Hypothesis, runs: Sequence[LoopRun], names: Sequence[str]):
+    """Appendix A's least squares of the named coefficients (others fixed) on moving samples.
+
+    Returns (names, values, residual sum of squares in N²), or None without measured
+    derivatives.
+    """
+    if any(r.zd is None or r.xdd is None for r in runs):
+        return None
+    model = h.model
+    z = [r.data.x - r.data.motion(r.data.t) for r in runs]
+    Z = campaign_regressors(model, z, [r.zd for r in runs], runs[0].data.dt)
+    zd = np.concatenate([r.zd for r in runs])
+    y = -model.mass * np.concatenate([r.xdd for r in runs])
+    moving = np.abs(zd) > max(2.0 * model.stop_velocity, 1e-3)  # appendix A drops rest
+    cols = [j for j, t in enumerate(model.terms) if t.name in names]
+    fixed = [j for j in range(len(model.terms)) if j not in cols]
+    known = Z[moving][:, fixed] @ np.array([model.terms[j].coef for j in fixed])
+    A, b = Z[moving][:, cols], y[moving] - known
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    rss = float(np.sum((b - A @ coef) ** 2))
+    return [model.terms[j].name for j in cols], coef, rss
+
+
+def _equation_error_start(h: Hypothesis, runs: Sequence[LoopRun], name: str, c: Candidate
+                          ) -> list[Hypothesis]:
+    """A start from appendix A's least squares with the candidate's regressor added.
+
+    The fitted constants of the base model have soaked up what the missing effect
+    did, and output error can stay in that valley; the equation-error solution of all
+    linear coefficients together, from the measured z, ż, ẍ, has no valleys. Stateful
+    terms are regressors too (`regressors.campaign_regressors`); sensor effects are not.
+    """
+    if not c.term_kind:
+        return []
+    names = [t.name for t in h.model.terms if t.name in LINEAR or t.coef != 0.0] + [name]
+    solved = _equation_error(h, runs, names)
+    if solved is None:
+        return []
+    values = dict(zip(solved[0], solved[1].tolist()))
+    values[name] = float(np.clip(values[name], *c.bounds(h.model)))
+    if any(values[n] <= 0 for n in LINEAR if n in values):
+        return []  # a negative stiffness or damping: not a start within the refit's bounds
+    return [h.with_values(values)]
