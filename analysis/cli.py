@@ -9,14 +9,14 @@ from collections.abc import Sequence
 from analysis.cli_fit import add_fit_parser, run_fit
 from analysis.force_driven.datasets import add_datasets_parser, run_datasets
 from analysis.model.report_constants import format_table1
-from rig.cli_support import guarded
+from rig.cli_support import add_units_argument, guarded
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="analysis", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("constants", help="print the report's Table 1")
-    p.add_argument("--units", default="us", choices=("us", "si"))
+    add_units_argument(p, "us", "units of the table")
     add_fit_parser(sub)
     add_datasets_parser(sub)
     return parser

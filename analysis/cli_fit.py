@@ -9,27 +9,31 @@ import time
 from pathlib import Path
 
 from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_force_fit
-from analysis.identify.loading import UNITS, load_runs
+from analysis.identify.foreign import parse_channels
+from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import IsolatorFit, identify
 from analysis.identify.report_format import fit_json, format_fit
 from analysis.loop import LoopResult, LoopRun, close_loop
 from analysis.loop.report import add_loop_section, format_loop, loop_json
 from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
 from analysis.simulate.compiled import warm_up
+from rig.cli_support import LENGTH_UNIT, add_units_argument
 from rig.errors import DataError
 from rig.units import to_si
 
 
 def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="identify Eq 10 from base-excited runs (HDF5 or CSV t,u,x)")
-    p.add_argument("files", nargs="+", type=Path, metavar="RUN.h5|CSV")
+    p.add_argument("files", nargs="+", type=Path, metavar="RUN.h5|CSV|MF4|TDMS")
     mass = p.add_mutually_exclusive_group()  # CSV carries no mass; a run file does
     mass.add_argument("--mass", type=float, metavar="KG",
                       help="isolated mass, kg (default: the run files' payload mass)")
     mass.add_argument("--mass-lb", type=float, metavar="LB",
                       help="isolated mass, lb (default: the run files' payload mass)")
-    p.add_argument("--units", choices=UNITS, default=None,
-                   help="CSV displacement units (default: from the header, else m)")
+    add_units_argument(p, None, "CSV displacements")
+    p.add_argument("--channels", type=parse_channels, metavar="U,X",
+                   help="MDF/TDMS: table and mass displacement channels (default u,x, else "
+                        "table_u,mass_x; TDMS may be GROUP/CHANNEL)")
     p.add_argument("--include-aborted", action="store_true",
                    help="fit run files that did not end in success (never armed, e-stopped)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON")
@@ -47,7 +51,8 @@ def run_fit(args: argparse.Namespace) -> int:
             else float(to_si(args.mass_lb, "lbm")) if args.mass_lb is not None else None)
     if is_force_driven(args):
         return run_force_fit(args, mass)
-    loaded = load_runs(args.files, mass, args.units, args.include_aborted)
+    length = LENGTH_UNIT[args.units] if args.units else None
+    loaded = load_runs(args.files, mass, length, args.include_aborted, channels=args.channels)
     for w in loaded.warnings:
         print(f"analysis: warning: {w}", file=sys.stderr)
     start = time.perf_counter()

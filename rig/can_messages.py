@@ -10,6 +10,10 @@ maps its signals to dataclasses and back, and budgets the bus load. Classical CA
     0x201–0x206  ActuatorFeedback<i> actuator i → rig  position, state, fault bits
     0x701–0x708  Heartbeat<node>     node → all       node id, counter, state
 
+The rig's mass sensor is on the serial port, not on this bus. A bench that puts a mass
+sensor on CAN describes it in its own DBC (`bench_database`: the rig's messages plus a
+`MassSensor` laid out as TableSensor), and the same functions decode it with `db=`.
+
 Counters are the low bits of an unbounded count: encode wraps, `unwrap` restores.
 """
 
@@ -17,18 +21,22 @@ from __future__ import annotations
 
 import enum
 import functools
+import os
 from dataclasses import dataclass
 from typing import Union
 
 import can
 import cantools
-from cantools.database.can import Database
+from cantools.database.can import Database, Message
 
 from rig.config import RigConfig
 from rig.errors import DataError, LimitError
 from rig.paths import data_file
 
 COMMAND_ID = 0x010
+#: the message a bench DBC may add for a mass sensor on CAN (signals as TableSensor's)
+MASS_SENSOR = "MassSensor"
+_SENSOR_SIGNALS = ("Counts", "Sequence", "TimestampUs")
 SETPOINT_BASE = 0x100
 TABLE_SENSOR_ID = 0x150
 FEEDBACK_BASE = 0x200
@@ -108,6 +116,15 @@ class TableSample:
 
 
 @dataclass(frozen=True)
+class MassSample:
+    """One mass sensor sample on CAN (a bench DBC's MassSensor; the rig's own is serial)."""
+
+    counts: int
+    sequence: int
+    timestamp_us: int
+
+
+@dataclass(frozen=True)
 class Heartbeat:
     """Node `node` (1–8) is alive in `state`; `counter` counts its heartbeats."""
 
@@ -125,7 +142,7 @@ class Command:
     start_sample: int = 0  # START: the full setpoint sample index to begin at
 
 
-RigMessage = Union[Setpoint, Feedback, TableSample, Heartbeat, Command]
+RigMessage = Union[Setpoint, Feedback, TableSample, MassSample, Heartbeat, Command]
 
 
 @functools.cache
@@ -134,25 +151,69 @@ def database() -> Database:
     return cantools.database.load_file(str(data_file("isolator_rig.dbc")), strict=True)
 
 
-def known_ids() -> frozenset[int]:
-    """Every arbitration id in the DBC (for receive filters)."""
-    return frozenset(m.frame_id for m in database().messages)
+def bench_database(path: str | os.PathLike[str]) -> Database:
+    """A DBC given by the user, checked to describe the rig's messages exactly as ours does.
 
-
-def encode(msg: RigMessage) -> tuple[int, bytes]:
-    """(arbitration id, 8 data bytes) of `msg`; ValueError names an out-of-range field."""
-    frame_id, signals = _signals(msg)
+    It may add messages: a `MassSensor` (decoded as MassSample) and other nodes' (kept
+    raw). DataError names the file and the first difference.
+    """
     try:
-        data = database().get_message_by_frame_id(frame_id).encode(signals, strict=True)
+        db = cantools.database.load_file(str(path), database_format="dbc", strict=True)
+    except OSError as e:
+        raise DataError(f"{path}: cannot read the DBC: {e.strerror or e}") from None
+    except (cantools.database.Error, ValueError, UnicodeDecodeError) as e:  # syntax, overlaps
+        raise DataError(f"{path}: not a readable DBC: {type(e).__name__}: {e}") from None
+    for ours in database().messages:
+        try:
+            theirs = db.get_message_by_name(ours.name)
+        except KeyError:
+            raise DataError(f"{path}: no message {ours.name} (0x{ours.frame_id:03X}) of the "
+                            "rig's DBC") from None
+        if _layout(theirs) != _layout(ours):
+            raise DataError(f"{path}: message {ours.name} differs from the rig's DBC "
+                            f"(id, length or signals)")
+    names = {m.name for m in db.messages}
+    if MASS_SENSOR in names:
+        mass = db.get_message_by_name(MASS_SENSOR)
+        have = {s.name for s in mass.signals}
+        if not set(_SENSOR_SIGNALS) <= have or mass.is_extended_frame:
+            raise DataError(f"{path}: {MASS_SENSOR} needs an 11-bit id and signals "
+                            f"{', '.join(_SENSOR_SIGNALS)}; it has 0x{mass.frame_id:X} and "
+                            f"{', '.join(sorted(have))}")
+    return db
+
+
+def _layout(m: Message) -> tuple:
+    return (m.frame_id, m.is_extended_frame, m.length, sorted(
+        (s.name, s.start, s.length, s.byte_order, s.is_signed, s.scale, s.offset)
+        for s in m.signals))
+
+
+def known_ids(db: Database | None = None) -> frozenset[int]:
+    """Every arbitration id of a message the rig decodes (for receive filters): all of the
+    rig's DBC, or of `db` those that are the rig's or its MassSensor."""
+    ours = {m.name for m in database().messages} | {MASS_SENSOR}
+    messages = (database() if db is None else db).messages
+    return frozenset(m.frame_id for m in messages if m.name in ours)
+
+
+def encode(msg: RigMessage, db: Database | None = None) -> tuple[int, bytes]:
+    """(arbitration id, 8 data bytes) of `msg` by the rig's DBC or `db`; ValueError names an
+    out-of-range field."""
+    db = database() if db is None else db
+    frame_id, signals = _signals(msg, db)
+    try:
+        data = db.get_message_by_frame_id(frame_id).encode(signals, strict=True)
     except (cantools.database.EncodeError, ValueError, OverflowError) as e:  # range, NaN
         raise ValueError(f"cannot encode {msg}: {e}") from None
     return frame_id, data
 
 
-def decode(arbitration_id: int, data: bytes) -> RigMessage:
-    """The message in a frame; DataError for an unknown id or malformed data."""
+def decode(arbitration_id: int, data: bytes, db: Database | None = None) -> RigMessage:
+    """The message in a frame, by the rig's DBC or `db`; DataError for an unknown id, a
+    message that is not the rig's, or malformed data."""
     try:
-        message = database().get_message_by_frame_id(arbitration_id)
+        message = (database() if db is None else db).get_message_by_frame_id(arbitration_id)
     except KeyError:
         raise DataError(f"CAN id 0x{arbitration_id:03X} is not in the rig's DBC") from None
     try:
@@ -163,18 +224,18 @@ def decode(arbitration_id: int, data: bytes) -> RigMessage:
             from None
 
 
-def to_can(msg: RigMessage) -> can.Message:
+def to_can(msg: RigMessage, db: Database | None = None) -> can.Message:
     """A python-can frame (11-bit id) carrying `msg`."""
-    frame_id, data = encode(msg)
+    frame_id, data = encode(msg, db)
     return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
 
 
-def from_can(frame: can.Message) -> RigMessage:
+def from_can(frame: can.Message, db: Database | None = None) -> RigMessage:
     """The message in a python-can frame; DataError if it is not one of ours."""
     if frame.is_extended_id or frame.is_remote_frame or frame.is_fd:
         raise DataError(f"CAN frame 0x{frame.arbitration_id:X} is not a classical 11-bit "
                         "data frame")
-    return decode(frame.arbitration_id, frame.data)
+    return decode(frame.arbitration_id, frame.data, db)
 
 
 def unwrap(previous: int, counter: int, bits: int) -> int:
@@ -191,7 +252,7 @@ def _check_index(name: str, value: int, allowed: range) -> None:
         raise ValueError(f"{name} must be in {allowed.start}..{allowed.stop - 1}, got {value}")
 
 
-def _signals(msg: RigMessage) -> tuple[int, dict[str, float | int]]:
+def _signals(msg: RigMessage, db: Database) -> tuple[int, dict[str, float | int]]:
     """Arbitration id and cantools signal values of `msg` (counters wrapped)."""
     if isinstance(msg, Setpoint):
         _check_index("actuator", msg.actuator, ACTUATORS)
@@ -206,6 +267,14 @@ def _signals(msg: RigMessage) -> tuple[int, dict[str, float | int]]:
             "Sequence": msg.sequence % (1 << FEEDBACK_SEQUENCE_BITS), **faults}
     if isinstance(msg, TableSample):
         return TABLE_SENSOR_ID, {
+            "Counts": msg.counts, "Sequence": msg.sequence % (1 << SENSOR_SEQUENCE_BITS),
+            "TimestampUs": msg.timestamp_us % (1 << TIMESTAMP_BITS)}
+    if isinstance(msg, MassSample):
+        try:
+            frame_id = db.get_message_by_name(MASS_SENSOR).frame_id
+        except KeyError:
+            raise ValueError(f"the DBC has no {MASS_SENSOR} message for {msg}") from None
+        return frame_id, {
             "Counts": msg.counts, "Sequence": msg.sequence % (1 << SENSOR_SEQUENCE_BITS),
             "TimestampUs": msg.timestamp_us % (1 << TIMESTAMP_BITS)}
     if isinstance(msg, Heartbeat):
@@ -233,13 +302,16 @@ def _build(name: str, frame_id: int, s: dict) -> RigMessage:
             faults |= bit if s[sig] else Fault.NONE
         return Feedback(int(s["ActuatorIndex"]), int(s["Sequence"]), _metres(s["Position"]),
                         NodeState(s["Status"]), faults)
-    if name == "TableSensor":
-        return TableSample(int(s["Counts"]), int(s["Sequence"]), int(s["TimestampUs"]))
+    if name in ("TableSensor", MASS_SENSOR):
+        kind = TableSample if name == "TableSensor" else MassSample
+        return kind(int(s["Counts"]), int(s["Sequence"]), int(s["TimestampUs"]))
     if name.startswith("Heartbeat"):
         if s["NodeId"] != frame_id - HEARTBEAT_BASE:
             raise ValueError(f"NodeId {s['NodeId']} on the id of node {frame_id - HEARTBEAT_BASE}")
         return Heartbeat(int(s["NodeId"]), int(s["Counter"]), NodeState(s["State"]))
-    return Command(CommandKind(s["Command"]), int(s["Counter"]), int(s["StartSample"]))
+    if name == "RigCommand":
+        return Command(CommandKind(s["Command"]), int(s["Counter"]), int(s["StartSample"]))
+    raise ValueError("not one of the rig's messages")
 
 
 def _metres(value: float) -> float:

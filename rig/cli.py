@@ -6,8 +6,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rig import cli_run
-from rig.cli_support import guarded
+from rig import cli_files, cli_run
+from rig.cli_support import add_units_argument, guarded
+from rig.errors import ConfigError
 from rig.profile import load_profile
 from rig.tui import cli as tui_cli
 from rig.units import from_si
@@ -17,9 +18,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rig", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("profile", help="show a table motion profile and its peaks")
-    p.add_argument("profile", help="A, B, C or a profile TOML file")
-    p.add_argument("--units", default="us", choices=("us", "si"))
+    p.add_argument("--profile", dest="profile_flag", metavar="PROFILE",
+                   help="A, B, C or a profile TOML file")
+    p.add_argument("profile", nargs="?", help=argparse.SUPPRESS)  # the older spelling
+    add_units_argument(p, "us", "units of what is printed")
     cli_run.add_parsers(sub)
+    cli_files.add_parsers(sub)
     tui_cli.add_parser(sub)
     return parser
 
@@ -31,11 +35,24 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "profile":
-        print(format_profile(args.profile, args.units))
-        return 0
+        return cmd_profile(args)
     if args.command == "tui":
         return tui_cli.cmd_tui(args)
-    return cli_run.dispatch(args) or 0
+    done = cli_run.dispatch(args)
+    return (cli_files.dispatch(args) or 0) if done is None else done
+
+
+def cmd_profile(args: argparse.Namespace) -> int:
+    if args.profile and args.profile_flag:
+        raise ConfigError("rig profile", "", "give the profile once, as --profile")
+    if args.profile:
+        print(f"note: rig profile {args.profile} is the older spelling of rig profile "
+              f"--profile {args.profile}; it still works", file=sys.stderr)
+    spec = args.profile_flag or args.profile
+    if not spec:
+        raise ConfigError("rig profile", "", "which profile? --profile A|B|C|FILE.toml")
+    print(format_profile(spec, args.units))
+    return 0
 
 
 def format_profile(spec: str, units: str) -> str:

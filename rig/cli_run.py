@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from rig import can_messages as cm
+from rig.cli_support import add_units_argument
 from rig.config import RigConfig, load_config
 from rig.errors import ConfigError, DataError, LimitError
 from rig.limits import Margins, check_all, limit_error
@@ -55,8 +56,7 @@ def _profile_args(p: argparse.ArgumentParser) -> None:
 
 
 def _units_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--units", default="us", choices=("us", "si"),
-                   help="units of what is printed: us (in, lb) or si (default us)")
+    add_units_argument(p, "us", "units of what is printed")
 
 
 def _run_args(p: argparse.ArgumentParser) -> None:

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import traceback
@@ -55,3 +56,44 @@ def guarded(main: Callable[[Sequence[str] | None], int], argv: Sequence[str] | N
 def _error(prog: str, kind: str, message: str, code: int) -> int:
     print(f"{prog}: {kind}: {' '.join(message.split())}", file=sys.stderr)
     return code
+
+
+# One vocabulary across the three CLIs: a table motion is chosen with --profile, and
+# units are a system, us (in, lb, the report's) or si (m, N), for what is printed and
+# for what a file holds. The older spellings still work, with a note that names the new.
+UNIT_SYSTEMS = ("us", "si")
+LENGTH_UNIT = {"us": "in", "si": "m"}  # what a file's displacements are in, per system
+OLD_UNIT_WORDS = {"in": "us", "m": "si"}
+
+
+def unit_system(text: str) -> str:
+    """argparse type of --units: us or si; in and m are read as their system, with a note."""
+    word = text.strip().lower()
+    if word in UNIT_SYSTEMS:
+        return word
+    if word in OLD_UNIT_WORDS:
+        new = OLD_UNIT_WORDS[word]
+        print(f"note: --units {text} is the older spelling of --units {new} "
+              f"({LENGTH_UNIT[new]}); it still works", file=sys.stderr)
+        return new
+    raise argparse.ArgumentTypeError(f"{text!r}: us (in, lb, the report's units) or si (m, N)")
+
+
+def add_units_argument(p: argparse.ArgumentParser, default: str | None, what: str) -> None:
+    """--units us|si; `what` says what it applies to, for --help."""
+    shown = f"default {default}" if default else "default: from the file, else si"
+    p.add_argument("--units", type=unit_system, default=default, metavar="us|si",
+                   help=f"{what}: us (in, lb) or si (m, N) ({shown})")
+
+
+def older_spelling(new: str) -> type[argparse.Action]:
+    """An argparse action for an option's older name: stores under the new one's dest and
+    says which name to use."""
+
+    class Older(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(f"note: {option_string} is the older spelling of {new}; it still works",
+                  file=sys.stderr)
+            setattr(namespace, self.dest, values)
+
+    return Older

@@ -10,6 +10,9 @@ written `HOLD_S` after it arrived, on the fit as it stands then, so every
 sample but the first half second's is placed by a fit that has seen it and its
 neighbours; `finish()` refits and writes the rest. Live readers lag by HOLD_S.
 
+`rig import` feeds a logged bus through the same path; a bench DBC with a MassSensor
+message (rig.can_messages) brings the mass sensor over CAN, handled as the table's.
+
 Losses, never interpolated: numbered frames (sensor device timestamps, feedback
 servo ticks, heartbeat counters) are classified on arrival (rig.interlocks.Sequences):
 missing ones are counted as `lost`, repeats as `duplicates` (not written twice),
@@ -32,9 +35,10 @@ from collections import deque
 
 import can
 import numpy as np
+from cantools.database.can import Database
 
 from rig import can_messages as cm
-from rig.can_messages import Fault, Feedback, Heartbeat, NodeState, TableSample
+from rig.can_messages import Fault, Feedback, Heartbeat, MassSample, NodeState, TableSample
 from rig.clock_fit import ClockFit
 from rig.config import RigConfig
 from rig.errors import DataError, RigError
@@ -60,8 +64,10 @@ class Recorder:
     """Writes what the receivers hand over and keeps the counts a run summary reports."""
 
     def __init__(self, writer: RunWriter, config: RigConfig, start_unix: float,
-                 t0_mono: float) -> None:
-        self.w, self.config = writer, config
+                 t0_mono: float, db: Database | None = None) -> None:
+        """`db`: a bench DBC (rig.can_messages.bench_database) to decode with instead of the
+        rig's; one with a MassSensor message brings mass_x over CAN (a logged bench bus)."""
+        self.w, self.config, self._db = writer, config, db
         self._start_unix, self._t0 = start_unix, t0_mono
         self.table_clock, self.mass_clock = ClockFit(), ClockFit()
         self._seq = Sequences()
@@ -78,7 +84,7 @@ class Recorder:
                         "mass_x": 1.0 / config.mass_sensor.sample_rate}
         self._fb_per_frame = config.rates.setpoint / config.rates.feedback
         self._fb_state: dict[int, NodeState] = {}
-        self._ours = cm.known_ids()
+        self._ours = cm.known_ids(db)
         # for displays only (rig.live): recent samples on arrival time, last feedback
         self.traces = {"table_u": Trace(), "mass_x": Trace()}
         self._last_feedback: dict[int, tuple[float, int, int, float]] = {}
@@ -96,7 +102,8 @@ class Recorder:
 
     # -- CAN -------------------------------------------------------------------------------
 
-    def can_frame(self, msg: can.Message) -> None:
+    def can_frame(self, msg: can.Message) -> cm.RigMessage | None:
+        """Record, count and decode one frame; the rig message in it, if any."""
         t = msg.timestamp - self._start_unix
         self.counts["can"] += 1
         self.w.can_frame(t, msg.arbitration_id, bytes(msg.data), dlc=msg.dlc,
@@ -108,19 +115,22 @@ class Recorder:
             if msg.arbitration_id & CAN_ERR_BUSOFF:
                 self.faults.append(f"CAN bus off (error frame class 0x{msg.arbitration_id:03X} "
                                    f"at t = {t:.3f} s)")
-            return
+            return None
         try:
-            m = cm.from_can(msg)
+            m = cm.from_can(msg, self._db)
         except DataError:
             if msg.arbitration_id in self._ours and not msg.is_extended_id:
                 self.w.count("can", "crc_errors")  # one of ours, but it fails the DBC
-            return  # kept raw, never decoded
+            return None  # kept raw, never decoded
         if isinstance(m, TableSample):
-            self._table(t, m)
+            self._sensor("table_u", cm.TABLE_SENSOR_ID, t, m)
+        elif isinstance(m, MassSample):
+            self._sensor("mass_x", msg.arbitration_id, t, m)
         elif isinstance(m, Feedback):
             self._feedback(t, m)
         elif isinstance(m, Heartbeat):
             self._count(self._seq.step(msg.arbitration_id, m.counter, 1 << cm.COUNTER_BITS))
+        return m
 
     def idle(self, stream: str, stamp: float) -> None:
         """The receiver of `stream` found nothing more up to `stamp` (Unix s for CAN,
@@ -142,19 +152,21 @@ class Recorder:
             self.w.count("can", "reordered")
         return not step.duplicate
 
-    def _table(self, t: float, m: TableSample) -> None:
-        step = self._seq.step(cm.TABLE_SENSOR_ID, m.timestamp_us, _US,
-                              1e6 * self._period["table_u"])
+    def _sensor(self, channel: str, key: int, t: float, m: TableSample | MassSample) -> None:
+        """A sensor sample on CAN: the table's, or a bench's mass sensor (rig.can_messages)."""
+        step = self._seq.step(key, m.timestamp_us, _US, 1e6 * self._period[channel])
         if not self._count(step):
             return
-        fit, sensor = self.table_clock, self.config.table_sensor
+        table = channel == "table_u"
+        fit = self.table_clock if table else self.mass_clock
+        sensor = self.config.table_sensor if table else self.config.mass_sensor
         device_s = fit.device_seconds(m.timestamp_us)
         fit.add(device_s, t)
         value = m.counts * sensor.scale + sensor.offset
-        self._defer("table_u", t, device_s, value)
-        self.traces["table_u"].append(t, value)
-        self.counts["table"] += 1
-        self.watch.sensor("table", t)
+        self._defer(channel, t, device_s, value)
+        self.traces[channel].append(t, value)
+        self.counts["table" if table else "mass"] += 1
+        self.watch.sensor("table" if table else "mass", t)
 
     def _defer(self, channel: str, arrival: float, device_s: float, value: float) -> None:
         """Hold a sample back (in device-time order) and write those older than `HOLD_S`,

@@ -59,6 +59,7 @@ class RunWriter:
         flush_interval: float = 0.1,
         min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
         clock: Callable[[], float] = time.monotonic,
+        start: datetime | None = None,
     ) -> None:
         """Create `path` (refusing to overwrite) with every dataset; raise DataError if impossible.
 
@@ -66,6 +67,7 @@ class RunWriter:
             `standard_channels()`. sources: names for /counters rows.
         min_free_bytes: stop cleanly ("fail", file intact) when the disk's free
             space falls below this, rather than meet ENOSPC inside HDF5.
+        start: the wall-clock time of t = 0 (default now): an imported log's first frame.
         """
         self.path = Path(path)
         self._clock = clock
@@ -75,7 +77,8 @@ class RunWriter:
         self._closed = True  # until the file exists, close() has nothing to do
         specs = tuple(standard_channels() if channels is None else channels)
         self._reserve = refuse_unless_writable(self.path, reserve_size(specs))
-        self.t0, start = clock(), datetime.now(timezone.utc)  # host time 0 = this wall time
+        self.t0 = clock()
+        start = start or datetime.now(timezone.utc)  # host time 0 = this wall time
         try:
             self._file, tables, self._counter_ds = create_layout(
                 self.path, info, specs, sources, start

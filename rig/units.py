@@ -33,6 +33,7 @@ FACTORS: dict[str, float] = {
     "Pa": 1.0,
     "m^2": 1.0,
     "m^3/s": 1.0,
+    "mm": 1e-3,  # as measurement files (MDF, TDMS) often give lengths
     # US customary, as the report writes them
     "in": INCH,
     "in.": INCH,

@@ -10,7 +10,7 @@ from pathlib import Path
 from analysis.model.model_json import IdentifiedModel
 from analysis.model.report_constants import RUNS, report_model
 from analysis.predict import DRAWS, predict
-from rig.cli_support import guarded
+from rig.cli_support import add_units_argument, guarded, older_spelling
 from rig.errors import DataError
 from sim import cli_generate, serve
 from sim.response import base_motion, format_prediction, read_model, write_csv, write_plot
@@ -24,9 +24,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(CERL TR M-226), with Table 1's constants or an "
                                    "identified model (effects included), for a base motion; "
                                    "print the peaks, with an identified model's band.")
-    p.add_argument("--motion", "--run", dest="motion", default="A",
+    p.add_argument("--profile", dest="motion", default="A",
                    help="A, B, C, a profile TOML file, or a CSV of the table displacement "
                         "('t [s],u [in]') or base acceleration ('t [s],a [g]') (default A)")
+    for older in ("--motion", "--run"):
+        p.add_argument(older, dest="motion", action=older_spelling("--profile"),
+                       help=argparse.SUPPRESS)
     model = p.add_mutually_exclusive_group()
     model.add_argument("--constants", default="average", choices=RUNS,
                        help="Table 1 column to use (default average)")
@@ -38,8 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--draws", type=int, default=DRAWS,
                    help=f"draws from the covariance for the band (default {DRAWS})")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
-    p.add_argument("--units", default="us", choices=("us", "si"),
-                   help="report's units (in, lb, s) or SI (default us)")
+    add_units_argument(p, "us", "units of what is printed and written")
     p.add_argument("--out", type=Path, help="write every sample to this CSV file")
     p.add_argument("--plot", type=Path, metavar="PNG", help="write a figure of the response")
     cli_generate.add_parser(sub)

@@ -49,7 +49,7 @@ def test_csv_round_trip_in_both_unit_systems(tmp_path: Path, run_a) -> None:
         assert back.t[1] - back.t[0] == pytest.approx(1e-3)
     mass_lb = run_a.mass / 0.45359237
     a = fit_json(tmp_path, str(si), "--mass", str(run_a.mass), "--no-refine")
-    b = fit_json(tmp_path, str(us), "--units", "in", "--mass-lb", str(mass_lb), "--no-refine")
+    b = fit_json(tmp_path, str(us), "--units", "us", "--mass-lb", str(mass_lb), "--no-refine")
     # the files differ in their 10th digit, which the shape search carries to ~1e-5;
     # a unit slip would show as 2.5 % or more
     for n in ("k1", "k2", "c1", "c2", "alpha", "beta", "delta"):
@@ -62,7 +62,7 @@ def test_header_units_are_read_and_must_agree(tmp_path: Path, run_a) -> None:
     path = write_csv(tmp_path / "a.csv", run_a, "in", header="t [s],u [in],x [in]")
     back = load_runs([path], run_a.mass).runs[0]
     np.testing.assert_allclose(back.x, run_a.x, atol=1e-9)
-    with pytest.raises(DataError, match="column u is in in but --units says m"):
+    with pytest.raises(DataError, match=r"column u is in in but --units says si \(m\)"):
         load_runs([path], run_a.mass, "m")
 
 

@@ -17,7 +17,7 @@ from sim.cli import main as sim_main
 
 
 def test_sim_response_prints_peaks_in_us_units(capsys):
-    assert sim_main(["response", "--run", "A"]) == 0
+    assert sim_main(["response", "--profile", "A"]) == 0
     out = capsys.readouterr().out
     line = next(ln for ln in out.splitlines() if ln.startswith("relative displacement z"))
     peak_in = abs(float(line.split()[3]))
@@ -27,8 +27,8 @@ def test_sim_response_prints_peaks_in_us_units(capsys):
 
 def test_sim_response_csv_in_si_matches_us(tmp_path, capsys):
     si, us = tmp_path / "si.csv", tmp_path / "us.csv"
-    assert sim_main(["response", "--run", "C", "--units", "si", "--out", str(si)]) == 0
-    assert sim_main(["response", "--run", "C", "--units", "us", "--out", str(us)]) == 0
+    assert sim_main(["response", "--profile", "C", "--units", "si", "--out", str(si)]) == 0
+    assert sim_main(["response", "--profile", "C", "--units", "us", "--out", str(us)]) == 0
     with open(si) as f:
         header_si = next(csv.reader(f))
     with open(us) as f:
@@ -42,8 +42,8 @@ def test_sim_response_csv_in_si_matches_us(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv,needle", [
-    (["response", "--run", "nowhere.toml"], "no such profile"),
-    (["response", "--run", "A", "--constants", "Z"], "invalid choice"),
+    (["response", "--profile", "nowhere.toml"], "no such profile"),
+    (["response", "--profile", "A", "--constants", "Z"], "invalid choice"),
 ])
 def test_sim_bad_input_is_one_line(argv, needle, capsys):
     with pytest.raises(SystemExit) if "invalid" in needle else _nothing():
@@ -64,7 +64,7 @@ class _nothing:
 def test_analysis_constants_and_rig_profile(capsys):
     assert analysis_main(["constants", "--units", "si"]) == 0
     assert "N/(m/s)" in capsys.readouterr().out
-    assert rig_main(["profile", "C"]) == 0
+    assert rig_main(["profile", "--profile", "C"]) == 0
     out = capsys.readouterr().out
     assert "ramp to +5.500 in over 0.120 s" in out and "5.71 g" in out
 

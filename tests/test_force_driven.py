@@ -132,7 +132,7 @@ def test_cli_force_layout_json(tmp_path, capsys):
     path = tmp_path / "msd.csv.gz"
     write_csv(path, force_record(8, TRUE), q_scale=1 / 0.0254)  # position in inches
     out = tmp_path / "fit.json"
-    rc = main(["fit", str(path), "--force", "force_N", "--position", "q_m", "--units", "in",
+    rc = main(["fit", str(path), "--force", "force_N", "--position", "q_m", "--units", "us",
                "--stiffness", "--cutoff", str(CUTOFF), "--decimate", str(FACTOR),
                "--json", str(out)])
     assert rc == 0

@@ -64,9 +64,9 @@ def fit_campaign(tmp: Path, *args: str) -> dict:
 
 
 def predicted_x(tmp: Path, fit: Path, run: str = "A") -> np.ndarray:
-    """x (m) of `sim response --model FIT --motion RUN.csv`, through its CSV output."""
+    """x (m) of `sim response --model FIT --profile RUN.csv`, through its CSV output."""
     out = tmp / f"pred_{run}.csv"
-    assert sim_main(["response", "--model", str(fit), "--motion", str(tmp / f"{run}.csv"),
+    assert sim_main(["response", "--model", str(fit), "--profile", str(tmp / f"{run}.csv"),
                      "--units", "si", "--band", "0", "--out", str(out)]) == 0
     header = out.read_text().splitlines()[0].split(",")
     return np.loadtxt(out, delimiter=",", skiprows=1)[:, header.index("x [m]")]
@@ -258,7 +258,7 @@ def test_a_bad_motion_csv_is_one_line_and_exit_2(tmp_path, capsys, case):
     text, message = BAD_MOTION[case]
     path = tmp_path / "motion.csv"
     path.write_text(text)
-    assert sim_main(["response", "--motion", str(path)]) == 2
+    assert sim_main(["response", "--profile", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("sim: error: ") and message in err[0]
 
@@ -299,7 +299,7 @@ def test_a_bad_fit_json_is_one_line_and_exit_2(tmp_path, capsys, case):
 
 def test_missing_files_and_both_model_sources_are_refused(tmp_path, capsys):
     assert sim_main(["response", "--model", str(tmp_path / "nowhere.json")]) == 2
-    assert sim_main(["response", "--motion", str(tmp_path / "nowhere.csv")]) == 2
+    assert sim_main(["response", "--profile", str(tmp_path / "nowhere.csv")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all("No such file" in e and "nowhere" in e for e in err)
     with pytest.raises(SystemExit) as e:
@@ -312,7 +312,7 @@ def test_the_console_command_predicts_with_a_band_and_refuses_a_bad_json(clean_f
     tmp, _, _ = clean_fit
     png = tmp_path / "a.png"
     ok = subprocess.run([sys.executable, "-m", "sim", "response", "--model",
-                         str(tmp / "fit.json"), "--run", "A", "--plot", str(png)],
+                         str(tmp / "fit.json"), "--profile", "A", "--plot", str(png)],
                         check=False, capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0, ok.stderr
     line = next(ln for ln in ok.stdout.splitlines() if ln.startswith("relative displacement"))

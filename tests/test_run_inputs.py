@@ -57,7 +57,7 @@ def test_inches_without_a_unit_are_refused_naming_inches(tmp_path: Path, run_a, 
                delimiter=",", header="t,u,x", comments="", fmt="%.10g")
     assert main(["fit", str(path), "--mass", "2721.6", "--no-refine"]) == 2
     err = capsys.readouterr().err
-    assert "likely in inches" in err and "--units in" in err and len(err.strip().splitlines()) == 1
+    assert "likely in inches" in err and "--units us" in err and len(err.strip().splitlines()) == 1
     # told, it is read: the same file with --units in
     back = load_runs([path], 2721.6, "in").runs[0]
     np.testing.assert_allclose(back.u, run_a.u, rtol=0, atol=1e-9)

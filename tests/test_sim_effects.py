@@ -114,8 +114,8 @@ def test_csv_holds_only_what_a_rig_logs(tmp_path, units, scale):
 def test_generate_cli_writes_one_csv_per_run(tmp_path, capsys):
     from sim.cli import main
 
-    assert main(["generate", "--runs", "A", "C", "--effect", "quadratic_damping=800",
-                 "--units", "m", "--noise", "2.54e-5", "--out", str(tmp_path)]) == 0
+    assert main(["generate", "--profile", "A", "C", "--effect", "quadratic_damping=800",
+                 "--units", "si", "--noise", "2.54e-5", "--out", str(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["A.csv", "C.csv"]
     out = capsys.readouterr()
     assert "run C: 3001 samples, 3.00 s at 1000 Hz" in out.out

@@ -16,7 +16,13 @@ from analysis.force_driven.loading import load_force_record
 from analysis.force_driven.model import base_terms
 from analysis.force_driven.prepare import METHODS, prepare
 from analysis.force_driven.report import force_loop_json, format_force_loop
+from rig.cli_support import LENGTH_UNIT
 from rig.errors import DataError
+
+
+def _length(args: argparse.Namespace) -> str | None:
+    """The displacement unit of the files: --units us|si, or None (the header's, else m)."""
+    return LENGTH_UNIT[args.units] if args.units else None
 
 
 def add_force_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,9 +58,9 @@ def run_force_fit(args: argparse.Namespace, mass: float | None) -> int:
     """Load, prepare, fit the base model, close the loop; print and optionally write JSON."""
     if mass is not None and not mass > 0:
         raise DataError(f"--mass must be positive, got {mass}")
-    records = [load_force_record(f, args.force, args.position, args.units) for f in args.files]
+    records = [load_force_record(f, args.force, args.position, _length(args)) for f in args.files]
     prepared = [prepare(r, args.cutoff, args.decimate, args.derivatives) for r in records]
-    heldout = [prepare(load_force_record(f, args.force, args.position, args.units),
+    heldout = [prepare(load_force_record(f, args.force, args.position, _length(args)),
                        args.cutoff, args.decimate, args.derivatives)
                for f in (args.heldout or [])]
     loop = close_force_loop(prepared, base_terms(mass is not None, args.stiffness), mass,

@@ -60,6 +60,7 @@ import numpy as np
 
 from analysis.identify.foreign import FOREIGN_SUFFIXES, read_foreign
 from analysis.identify.pipeline import MeasuredRun
+from rig.cli_support import OLD_UNIT_WORDS
 from rig.config import MAX_STROKE, parse_config
 from rig.errors import ConfigError, DataError
 from rig.runfile import RunFile, check_readable, open_run
@@ -129,8 +130,7 @@ def load_runs(paths: list[Path], mass: float | None = None, units: str | None = 
         t, u, x = _uniform(path, t, u, x, out.warnings)
         if path.suffix.lower() not in (".h5", ".hdf5"):  # run files: checked per channel
             for column, v in (("u", u), ("x", x)):
-                if assumed:
-                    _check_assumed_unit(path, column, v)
+                _check_travel(path, column, v, assumed)
                 _check_speed(path, column, t, v, out.warnings)
         read.append((path, t, u, x, table))
     if not read:
@@ -171,19 +171,21 @@ def _isolated_mass(given: float | None, in_files: dict[Path, float], paths: list
     return float(given)
 
 
-def _check_assumed_unit(path: Path, column: str, v: np.ndarray) -> None:
-    """Refuse a column read as metres (no unit given anywhere) that moves further than a
-    shaker table can: a file in inches read as metres fits nonsense at exit 0."""
+def _check_travel(path: Path, column: str, v: np.ndarray, assumed: bool) -> None:
+    """Refuse a column that, in the unit it was read in, moves further than a shaker table
+    can: a file in inches read as metres fitted nonsense at exit 0. `assumed`: the unit
+    was named nowhere (metres were taken)."""
     span = float(np.ptp(v))
     if span <= MAX_TABLE_TRAVEL:
         return
     likely = next((u for u in UNITS if u != "m" and to_si(span, u) <= MAX_TABLE_TRAVEL), None)
-    raise DataError(f"{path}: column {column} spans {span:.3g} m read as metres, more than "
+    how = "read as metres" if assumed else "in the unit given"
+    raise DataError(f"{path}: column {column} spans {span:.3g} m {how}, more than "
                     f"a shaker table travels ({MAX_TABLE_TRAVEL:g} m)" + (
                         f": likely in {UNIT_WORDS[likely]} ({to_si(span, likely):.3g} m); "
-                        f"give --units "
-                        f"{likely} or write the unit in the header (e.g. '{column} [{likely}]')"
-                        if likely else "; give --units or the unit in the header"))
+                        f"give --units {OLD_UNIT_WORDS[likely]} or write the unit in the "
+                        f"header (e.g. '{column} [{likely}]')"
+                        if likely and assumed else "; check the file's units"))
 
 
 def _unique(stem: str, taken: set[str]) -> str:
@@ -238,7 +240,8 @@ def _unit(path: Path, column: str, header: str | None, given: str | None) -> str
         raise DataError(f"{path}: column {column} in unknown units {header!r} "
                         f"(known: {', '.join(UNITS)})")
     if header is not None and given is not None and header != given:
-        raise DataError(f"{path}: column {column} is in {header} but --units says {given}")
+        raise DataError(f"{path}: column {column} is in {header} but --units says "
+                        f"{OLD_UNIT_WORDS.get(given, given)} ({given})")
     return header or given or "m"
 
 
