@@ -11,6 +11,7 @@ from pathlib import Path
 from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_force_fit
 from analysis.identify.foreign import parse_channels
 from analysis.identify.loading import load_runs
+from analysis.identify.output_error import Z95
 from analysis.identify.pipeline import IsolatorFit, identify
 from analysis.identify.report_format import fit_json, format_fit
 from analysis.loop import LoopResult, LoopRun, close_loop
@@ -70,7 +71,7 @@ def run_fit(args: argparse.Namespace) -> int:
     if not (args.no_loop or args.no_refine):
         loop = close_loop(fit.model, loop_runs(fit), progress=progress)
         print()
-        print(format_loop(loop))
+        print(format_loop(loop, "us"))
     if args.json:
         doc = fit_json(fit)
         if loop is not None:
@@ -107,15 +108,17 @@ def loop_model_json(loop: LoopResult) -> dict:
 def with_loop(doc: dict, loop: dict) -> dict:
     """The fit's JSON with the loop's keys; `parameters` become the final model's.
 
-    The loop refits the constants it frees: their values (and std where it fitted them)
-    replace the base fit's; what it held keeps the base fit's entry (and its `held`).
+    The loop refits the constants it frees: their values, std and 95 % interval replace
+    the base fit's, and they are no longer held; what it held keeps the base fit's entry.
     """
     merged = {name: dict(entry) for name, entry in doc["parameters"].items()}
     for name, entry in loop["parameters"].items():
         mine = merged.setdefault(name, {"held": False})
         mine["value"], mine["unit"] = entry["value"], entry["unit"]
         if entry["std"] is not None:
-            mine["std"] = entry["std"]
+            v, s = entry["value"], entry["std"]
+            mine.update(std=s, ci95=[v - Z95 * s, v + Z95 * s])
+            mine.pop("held", None)
         mine.setdefault("std", None)
     out = {**doc, **{k: v for k, v in loop.items() if k != "parameters"}}
     out["parameters_base_model"] = doc["parameters"]

@@ -229,7 +229,7 @@ async def test_runs_screen_lists_marks_and_fits_with_progress(tmp_path: Path) ->
 def test_summarize_reads_the_fit_json() -> None:
     s = summarize(FIT_DOC)
     k1 = next(c for c in s.constants if c.name == "k1")
-    assert k1.shown("us") == ("441.79", "± 9.89", "lb/in")
+    assert k1.shown("us") == ("441.79", "± 19.4", "lb/in")  # the 95 % half width, as the CLI
     assert s.effects_added == ("sensor_delay",) and s.steps[0].added == "sensor_delay"
     assert s.before["20261123T141108_A"] == pytest.approx(21.68, abs=0.01)
     assert s.unexplained.startswith("residual")

@@ -33,7 +33,8 @@ FIT_DOC: dict = {
     "parameters": {
         "m": {"value": 2721.55422, "std": None, "unit": "kg", "held": True},
         "delta": {"value": 0.01955345793262456, "std": None, "unit": "m", "held": False},
-        "k1": {"value": 77370.03762528897, "std": 1732.2717309966724, "unit": "N/m"},
+        "k1": {"value": 77370.03762528897, "std": 1732.2717309966724, "unit": "N/m",
+               "ci95": [73974.85, 80765.23]},  # value ± 1.96 std, as analysis fit writes
         "c1": {"value": 5884.824988709689, "std": 158.69919859996747, "unit": "N/(m/s)"},
         "alpha": {"value": 192.48133696137728, "std": 14981.46036568541, "unit": "1/m"},
         "sensor_delay": {"value": 0.0037536659507171007, "std": 0.0011794742197019103,

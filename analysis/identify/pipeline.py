@@ -42,7 +42,7 @@ from analysis.identify.output_error import (
     refine,
     slice_residuals,
 )
-from analysis.identify.regressors import regressor_matrix
+from analysis.identify.run_errors import RunError, compare
 from analysis.identify.varpro import Data, Projection, project
 from analysis.model.isolator import IsolatorModel
 from analysis.model.report_constants import report_model
@@ -124,17 +124,6 @@ def prepare(run: MeasuredRun, method: str = "auto") -> PreparedRun:
     oe = RunData(run.name, run.t, table.motion, run.x, dx.noise)
     return PreparedRun(run=run, z=z, zd=zd, xdd=dx.a, active=active, oe=oe, table=table,
                        sigma_x=dx.noise, method=dx.method, settings=dict(dx.settings))
-
-
-@dataclass(frozen=True)
-class RunError:
-    """How well a model reproduces one run: NRMSE as fractions, force RMS in N."""
-
-    z: float
-    zd: float
-    xdd: float
-    force_rms: float  # RMS of the equation error m ẍ + F(z, ż) over the moving samples
-    residual_over_noise: float  # RMS(x_sim − x_meas) / σ_x: 1 for a right model
 
 
 @dataclass(frozen=True)
@@ -470,17 +459,9 @@ def run_error(model: IsolatorModel, p: PreparedRun) -> RunError:
     """Simulate the run from its estimated input and compare with the measured signals."""
     r = simulate(model, p.oe.motion, duration=p.oe.t[-1] - p.oe.t[0], dt=p.oe.dt,
                  t0=p.oe.t[0], z0=initial_offset(p.oe))
-    n = min(r.t.size, p.z.size)
-    coefs = np.array([t.coef for t in model.terms])
-    force = model.mass * p.xdd + regressor_matrix(model, p.z, p.zd) @ coefs
-
-    def nrmse(sim: np.ndarray, meas: np.ndarray) -> float:
-        return float(np.sqrt(np.mean((sim[:n] - meas[:n]) ** 2)) / np.sqrt(np.mean(meas[:n]**2)))
-
-    return RunError(z=nrmse(r.z, p.z), zd=nrmse(r.zd, p.zd), xdd=nrmse(r.xdd, p.xdd),
-                    force_rms=float(np.sqrt(np.mean(force[p.active] ** 2))),
-                    residual_over_noise=float(np.sqrt(np.mean((r.x[:n] - p.run.x[:n]) ** 2))
-                                              / p.sigma_x))
+    t = p.oe.t
+    return compare(model.mass, t, p.run.x, p.oe.motion(t), p.oe.motion.derivative()(t),
+                   p.sigma_x, r.x, p.zd, p.xdd)
 
 
 def flag_runs(per_run: dict[str, OutputErrorFit]) -> dict[str, list[str]]:

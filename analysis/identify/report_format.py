@@ -33,8 +33,11 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
     si_units = fit.model.units()
     runs = list(fit.per_run)
     label = "the report's units" if units == "us" else "SI"
+    # a run's column as wide as its name: a rig run's timestamped name ran into the next
+    widths = {r: max(11, len(r) + 6) for r in runs}
     head = (f"{'constant':<9}{'unit':<11}{'estimate':>11}{'± 95 %':>10}"
-            + "".join(f"{'run ' + r:>11}" for r in runs) + f"{'varpro':>11}{'app. A':>11}")
+            + "".join(f"{'run ' + r:>{widths[r]}}" for r in runs)
+            + f"{'varpro':>11}{'app. A':>11}")
     title = (f"identified isolator, {label} ({fit.estimate}; varpro = equation error with "
              "alpha, beta, delta searched; app. A = the report's least squares at its "
              "alpha, beta, delta)")
@@ -46,7 +49,8 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
             f"{_convert(stds[n], si_units[n], units)[0] * Z95:.2g}" if n in stds else "")
         row = f"{n:<9}{unit:<11}{v:>11.4g}{ci:>10}"
         for r in runs:
-            row += _cell(_convert(fit.per_run[r].model.parameters()[n], si_units[n], units)[0])
+            row += _cell(_convert(fit.per_run[r].model.parameters()[n], si_units[n], units)[0],
+                         widths[r])
         row += _cell(_convert(proj[n], si_units[n], units)[0])
         row += _cell(_convert(app_a[n], si_units[n], units)[0] if n in app_a else None)
         lines.append(row)
@@ -69,14 +73,19 @@ def format_constants(fit: IsolatorFit, units: str = "us") -> str:
 
 
 def format_errors(fit: IsolatorFit, units: str = "us") -> str:
-    """Per run: NRMSE of z, ż, ẍ, the equation-error force and residual / sensor noise."""
+    """Per run: NRMSE of z, ż, ẍ, the force left unexplained and residual / sensor noise
+    (`analysis.identify.run_errors`: the loop's lines use the same definitions)."""
     f_unit = "N" if units == "si" else "lb"
-    lines = [(f"{'run':<8}{'NRMSE z':>9}{'NRMSE ż':>9}{'NRMSE ẍ':>9}"
+    w = max([8, *(len(r) + 2 for r in fit.errors)])
+    lines = [(f"{'run':<{w}}{'NRMSE z':>9}{'NRMSE ż':>9}{'NRMSE ẍ':>9}"
               f"{'force RMS':>13}{'resid/noise':>13}")]
     for r, e in fit.errors.items():
-        lines.append(f"{r:<8}{e.z:>9.2%}{e.zd:>9.2%}{e.xdd:>9.2%}"
+        lines.append(f"{r:<{w}}{e.z:>9.2%}{e.zd:>9.2%}{e.xdd:>9.2%}"
                      f"{_convert(e.force_rms, 'N', units)[0]:>10.4g} {f_unit:<2}"
                      f"{e.residual_over_noise:>13.3f}")
+    lines.append("NRMSE: RMS(model - measured) / RMS(measured); force RMS: mass x RMS of the "
+                 "acceleration the model misses; resid/noise: RMS(x model - x measured) / the "
+                 "sensor noise (1 for a right model)")
     a = fit.appendix_a
     lines.append(f"appendix A: sigma^2 = {a.sigma2:.4g} N^2, condition number of A = "
                  f"{a.condition:.3g}, {a.samples} samples with relative motion")

@@ -8,6 +8,7 @@ import numpy as np
 
 from analysis.loop.refit import Fit
 from analysis.loop.result import LoopResult, Step
+from rig.units import from_si
 
 # the model's own term coefficients are reported with the loop's effects
 UNIT_OF_SENSOR = {"sensor_gain": "1", "sensor_delay": "s"}
@@ -53,8 +54,9 @@ def _step_json(s: Step) -> dict[str, object]:
             "error_after": s.error_after}
 
 
-def format_loop(result: LoopResult) -> str:
-    """Closing the loop, as a person reads it: each step with its evidence and errors."""
+def format_loop(result: LoopResult, units: str = "us") -> str:
+    """Closing the loop, as a person reads it: each step with its evidence and errors
+    (the errors as the fit's table defines them, forces in `units`)."""
     lines = ["closing the loop",
              f"  base model: residual {result.diagnosis_before.residual_over_noise:.2f} x sensor "
              f"noise, {'white' if result.diagnosis_before.white else 'not white'} "
@@ -66,7 +68,7 @@ def format_loop(result: LoopResult) -> str:
         lines.append(f"    evidence: score χ²₁ = {ev['value']:.1f}, residual cut "
                      f"{100 * ev['rss_drop']:.1f} %, t = {ev['t']:.1f}; held out: {ev['heldout']}")
         lines.append(f"    why: {ev['explanation']}")
-        lines.extend("    " + row for row in _error_rows(s.error_before, s.error_after))
+        lines.extend("    " + row for row in _error_rows(s.error_before, s.error_after, units))
     if not result.steps:
         lines.append("  no candidate effect was significant")
     for c in result.indistinguishable:
@@ -78,18 +80,22 @@ def format_loop(result: LoopResult) -> str:
     if result.unexplained:
         lines.append("  UNEXPLAINED STRUCTURE: no effect in the library accounts for it")
     lines.append("  before -> after, per run:")
-    lines.extend("    " + row for row in _error_rows(result.error_before, result.error_after))
+    lines.extend("    " + row for row in _error_rows(result.error_before, result.error_after,
+                                                       units))
     return "\n".join(lines)
 
 
-def _error_rows(before: dict, after: dict) -> list[str]:
+def _error_rows(before: dict, after: dict, units: str = "us") -> list[str]:
+    f_unit = "N" if units == "si" else "lb"
     rows = []
     for run in before:
         b, a = before[run], after[run]
-        cells = [f"{k} {100 * b[k]:.2f} -> {100 * a[k]:.2f} %" for k in ("z", "zd", "xdd")
-                 if k in b]
+        cells = [f"{label} {100 * b[k]:.2f} -> {100 * a[k]:.2f} %"
+                 for k, label in (("z", "z"), ("zd", "ż"), ("xdd", "ẍ")) if k in b]
         if "force_rms" in b:
-            cells.append(f"force {b['force_rms']:.1f} -> {a['force_rms']:.1f} N")
+            fb, fa = (float(from_si(b["force_rms"], f_unit)), float(from_si(a["force_rms"],
+                                                                            f_unit)))
+            cells.append(f"force RMS {fb:.1f} -> {fa:.1f} {f_unit}")
         cells.append(f"residual/noise {b['residual_over_noise']:.2f} -> "
                      f"{a['residual_over_noise']:.2f}")
         rows.append(f"run {run}: NRMSE " + ", ".join(cells))

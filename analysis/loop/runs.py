@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.identify.output_error import RunData, noise_sigma
+from analysis.identify.run_errors import compare
 from analysis.loop.candidates import Candidate
 from analysis.loop.recent import Recent
 from analysis.loop.refit import Fit, Hypothesis, predict
@@ -72,24 +73,10 @@ def predicted_signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.n
 def run_errors(fit: Fit, runs: Sequence[LoopRun]) -> dict[str, dict[str, float]]:
     """Per run: NRMSE of z, ż, ẍ (fractions), RMS of m(ẍ_meas − ẍ_model) in N, residual/noise."""
     pred = _predicted(fit.hypothesis, runs)
-    m = fit.hypothesis.model.mass
     out = {}
     for p, r in zip(pred, runs):
-        t, x = r.data.t, p[0]
-        u = r.data.motion(t)
-        z_meas, z_pred = r.data.x - u, x - u
-        e = {"z": _nrmse(z_pred, z_meas),
-             "residual_over_noise": float(np.sqrt(np.mean(((x - r.data.x) / r.data.sigma_x)
-                                                         ** 2)))}
-        if r.zd is not None and r.xdd is not None:
-            xd = np.gradient(x, t)
-            xdd = np.gradient(xd, t)
-            e["zd"] = _nrmse(xd - r.ud, r.zd)
-            e["xdd"] = _nrmse(xdd, r.xdd)
-            e["force_rms"] = float(m * np.sqrt(np.mean((xdd - r.xdd) ** 2)))
-        out[r.data.name] = e
+        t = r.data.t
+        e = compare(fit.hypothesis.model.mass, t, r.data.x, r.data.motion(t), r.ud,
+                    r.data.sigma_x, p[0], r.zd, r.xdd)
+        out[r.data.name] = e.as_dict()
     return out
-
-
-def _nrmse(model: np.ndarray, measured: np.ndarray) -> float:
-    return float(np.sqrt(np.mean((model - measured) ** 2)) / np.sqrt(np.mean(measured**2)))

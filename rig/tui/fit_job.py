@@ -33,20 +33,21 @@ def analysis_command(files: Sequence[Path], json_path: Path, report: Path) -> li
 
 @dataclass(frozen=True)
 class Constant:
-    """One identified constant, SI (`unit`); std None where it was held or not estimated."""
+    """One identified constant, SI (`unit`); half95 (the 95 % interval's half width, as
+    `analysis fit` prints it) None where it was held or not estimated."""
 
     name: str
     value: float
-    std: float | None
+    half95: float | None
     unit: str
     held: bool = False
 
     def shown(self, units: str) -> tuple[str, str, str]:
-        """(value, ±std, unit) as text in "si" or "us"."""
+        """(value, ± 95 %, unit) as text in "si" or "us"."""
         unit = self.unit if units == "si" else us_unit(self.unit)
         value = float(from_si(self.value, unit))
-        std = "" if self.std is None else f"± {float(from_si(self.std, unit)):.3g}"
-        return f"{value:.5g}", ("held" if self.held and not std else std), unit
+        ci = "" if self.half95 is None else f"± {float(from_si(self.half95, unit)):.3g}"
+        return f"{value:.5g}", ("held" if self.held and not ci else ci), unit
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ class FitSummary:
 
 def summarize(doc: dict) -> FitSummary:
     """The Results screen's view of `analysis fit --json` output."""
-    constants = tuple(Constant(n, float(e["value"]), _num(e.get("std")), str(e["unit"]),
+    constants = tuple(Constant(n, float(e["value"]), _half(e.get("ci95")), str(e["unit"]),
                                bool(e.get("held", False)))
                       for n, e in doc["parameters"].items())
     base = {r: float(e["residual_over_noise"]) for r, e in doc.get("error", {}).items()}
@@ -93,6 +94,14 @@ def summarize(doc: dict) -> FitSummary:
 
 def _rno(errors: dict | None) -> dict[str, float]:
     return {r: float(e["residual_over_noise"]) for r, e in (errors or {}).items()}
+
+
+def _half(ci: object) -> float | None:
+    """The half width of a [low, high] interval from the JSON, or None."""
+    if not isinstance(ci, list | tuple) or len(ci) != 2:
+        return None
+    low, high = _num(ci[0]), _num(ci[1])
+    return None if low is None or high is None else (high - low) / 2.0
 
 
 def _num(value: object) -> float | None:

@@ -53,7 +53,7 @@ class ResultsScreen(Screen):
 
     def on_mount(self) -> None:
         self.query_one("#constants-table", DataTable).add_columns(
-            "constant", "value", "± std", "unit")
+            "constant", "value", "± 95 %", "unit")
         self.query_one("#loop-table", DataTable).add_columns(
             "step", "effect added", "evidence", "run", "resid/noise before → after")
         self.set_interval(1.0 / POLL_HZ, self._poll)
