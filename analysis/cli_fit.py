@@ -15,7 +15,7 @@ from analysis.identify.output_error import Z95
 from analysis.identify.pipeline import IsolatorFit, identify
 from analysis.identify.report_format import fit_json, format_fit
 from analysis.loop import LoopResult, LoopRun, close_loop
-from analysis.loop.report import add_loop_section, format_loop, loop_json
+from analysis.loop.report import format_loop, loop_json
 from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import LENGTH_UNIT, add_units_argument
@@ -31,7 +31,7 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                       help="isolated mass, kg (default: the run files' payload mass)")
     mass.add_argument("--mass-lb", type=float, metavar="LB",
                       help="isolated mass, lb (default: the run files' payload mass)")
-    add_units_argument(p, None, "CSV displacements")
+    add_units_argument(p, None, "CSV displacements and the --report figures")
     p.add_argument("--channels", type=parse_channels, metavar="U,X",
                    help="MDF/TDMS: table and mass displacement channels (default u,x, else "
                         "table_u,mass_x; TDMS may be GROUP/CHANNEL)")
@@ -39,7 +39,8 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                    help="fit run files that did not end in success (never armed, e-stopped)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON")
     p.add_argument("--report", type=Path, metavar="DIR",
-                   help="write PNG figures and index.html into DIR")
+                   help="write the report into DIR: index.html, self-contained (figures "
+                        "embedded, in --units, default us), and the figures as PNG")
     p.add_argument("--no-refine", action="store_true",
                    help="stop after variable projection (no output-error refinement, no loop)")
     p.add_argument("--no-loop", action="store_true",
@@ -81,12 +82,10 @@ def run_fit(args: argparse.Namespace) -> int:
         args.json.write_text(json.dumps(doc, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")
     if args.report:
-        from analysis.identify.figures import write_report  # matplotlib only when asked
+        from analysis.report_page import write_report  # matplotlib only when asked
 
         progress("figures")
-        page = write_report(fit, args.report)
-        if loop is not None:
-            add_loop_section(page, loop)
+        page = write_report(fit, args.report, loop, args.files, args.units or "us")
         print(f"wrote {page}")
     return 0
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from analysis.loop.refit import Fit
 from analysis.loop.result import LoopResult, Step
-from rig.units import from_si
+from rig.units import from_si, us_unit
 
 # the model's own term coefficients are reported with the loop's effects
 UNIT_OF_SENSOR = {"sensor_gain": "1", "sensor_delay": "s"}
@@ -102,13 +102,15 @@ def _error_rows(before: dict, after: dict, units: str = "us") -> list[str]:
     return rows
 
 
-SIGNATURE_LABEL = {"z": "relative displacement z (m)", "zd": "relative velocity ż (m/s)",
-                   "t": "time over the campaign (s)", "x": "mass displacement x (m)",
-                   "xd": "mass velocity ẋ (m/s)"}
+# the variable a step's residual is plotted against: its name and SI unit
+SIGNATURE = {"z": ("relative displacement z", "m"), "zd": ("relative velocity ż", "m/s"),
+             "t": ("time over the campaign", "s"), "x": ("mass displacement x", "m"),
+             "xd": ("mass velocity ẋ", "m/s")}
 
 
-def loop_figures(result: LoopResult, out: Path) -> list[Path]:
-    """One PNG per step: the residual before it against the variable that exposed it."""
+def loop_figures(result: LoopResult, out: Path, units: str = "si") -> list[Path]:
+    """One PNG per step: the residual before it against the variable that exposed it
+    (that variable in `units`: "si", or "us" for the report's in and in/s)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,7 +120,9 @@ def loop_figures(result: LoopResult, out: Path) -> list[Path]:
     paths = []
     for i, s in enumerate(result.steps, 1):
         fig, ax = plt.subplots(figsize=(7, 4))
-        v, r = s.signature_before, s.residual_before
+        label, si_unit = SIGNATURE[s.evidence["signature"]]
+        unit = si_unit if units == "si" else us_unit(si_unit)
+        v, r = np.asarray(from_si(s.signature_before, unit)), s.residual_before
         ax.plot(v, r, ",", alpha=0.4, color="tab:blue")
         edges = np.quantile(v, np.linspace(0, 1, 25))
         mid = 0.5 * (edges[1:] + edges[:-1])
@@ -126,7 +130,7 @@ def loop_figures(result: LoopResult, out: Path) -> list[Path]:
         means = [r[which == b].mean() if np.any(which == b) else np.nan for b in range(24)]
         ax.plot(mid, means, "o-", color="tab:red", label="bin mean")
         ax.axhline(0, color="k", lw=0.5)
-        ax.set_xlabel(SIGNATURE_LABEL[s.evidence["signature"]])
+        ax.set_xlabel(f"{label} ({unit})")
         ax.set_ylabel("residual x_model − x_meas (× sensor noise)")
         ax.set_title(f"step {i}: residual before adding {s.added}")
         ax.legend()
@@ -136,16 +140,3 @@ def loop_figures(result: LoopResult, out: Path) -> list[Path]:
         plt.close(fig)
         paths.append(path)
     return paths
-
-
-def add_loop_section(page: Path, result: LoopResult) -> None:
-    """Append "closing the loop" (text and one figure per step) to the fit's HTML page."""
-    import html
-
-    figures = loop_figures(result, page.parent)
-    body = "".join(f"<p><img src='{p.name}' alt='{html.escape(p.stem)}'></p>\n"
-                   for p in figures)
-    section = (f"<h2>Closing the loop</h2>\n<pre>{html.escape(format_loop(result))}</pre>\n"
-               f"{body}")
-    text = page.read_text(encoding="utf-8")
-    page.write_text(text.replace("</body>", section + "</body>", 1), encoding="utf-8")
