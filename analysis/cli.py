@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from analysis.cli_fit import add_fit_parser, run_fit
+from analysis.design.cli import add_design_parser, run_design
 from analysis.force_driven.datasets import add_datasets_parser, run_datasets
 from analysis.model.report_constants import format_table1
 from rig.cli_support import add_units_argument, guarded
@@ -19,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_units_argument(p, "us", "units of the table")
     add_fit_parser(sub)
     add_datasets_parser(sub)
+    add_design_parser(sub)
     return parser
 
 
@@ -34,6 +36,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return run_fit(args)
     elif args.command == "datasets":
         return run_datasets(args)
+    elif args.command == "design":
+        return run_design(args)
     return 0
 
 

@@ -14,6 +14,7 @@ All SI.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -21,12 +22,14 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import PPoly
 
 from analysis.identify.input_error import refine_table
+from analysis.identify.loading import csv_column, read_csv_table
 from analysis.model.isolator import N_GLOBAL, IsolatorModel
 from analysis.model.model_json import SENSOR_NAMES, IdentifiedModel
 from analysis.simulate import DEFAULT_DT, Response, motion_from_samples, simulate, simulate_batch
 from analysis.table_motion import estimate_table_motion, quintic_hermite
 from rig.errors import DataError
 from rig.profile import load_profile
+from rig.units import factor
 
 BANDED = ("z", "zd", "xdd")  # the peaks a band is given for: what an isolator is judged by
 UNITS = {"u": "m", "x": "m", "z": "m", "zd": "m/s", "xdd": "m/s^2"}
@@ -225,5 +228,49 @@ def _nonnegative(model: IsolatorModel) -> list[int]:
     return list(range(N_GLOBAL)) + [idx[n] for t in model.terms for n in t.shape_names()]
 
 
-__all__ = ["BaseMotion", "Peak", "Prediction", "check_time", "integrated_motion", "is_exact",
-           "parameter_draws", "peak", "predict", "profile_motion", "sampled_motion"]
+# the units a motion CSV may give its displacement or acceleration column in
+LENGTH_UNITS = ("m", "in", "ft")
+ACCELERATION_UNITS = ("m/s^2", "in/s^2", "g")
+
+
+def base_motion(spec: str) -> BaseMotion:
+    """A profile (A, B, C, a TOML file) or a CSV record of u(t) or a(t)."""
+    if Path(spec).suffix.lower() == ".csv":
+        return read_motion_csv(Path(spec))
+    return profile_motion(spec)
+
+
+def read_motion_csv(path: Path) -> BaseMotion:
+    """`t [s],u [in]` (table displacement) or `t [s],a [g]` (base acceleration); other
+    columns are ignored. The displacement or acceleration must name its unit."""
+    columns, rows = read_csv_table(path)
+    if "t" not in columns or not ({"u", "a"} & set(columns)):
+        raise DataError(f"{path}: need columns t and u (table displacement) or t and a (base "
+                        f"acceleration), found {', '.join(columns) or 'none'}")
+    name, allowed = ("u", LENGTH_UNITS) if "u" in columns else ("a", ACCELERATION_UNITS)
+    t_unit, unit = columns["t"][1], columns[name][1]
+    if t_unit not in (None, "s"):
+        raise DataError(f"{path}: time must be in s, header says {t_unit!r}")
+    if unit not in allowed:
+        raise DataError(f"{path}: column {name} needs its unit in the header, one of "
+                        f"{', '.join(allowed)} (e.g. '{name} [{allowed[1]}]'), got {unit!r}")
+    t = csv_column(path, rows, columns["t"][0], "t")
+    v = csv_column(path, rows, columns[name][0], name) * factor(unit)
+    return (sampled_motion if name == "u" else integrated_motion)(t, v, str(path))
+
+
+__all__ = [
+    "BaseMotion",
+    "Peak",
+    "Prediction",
+    "base_motion",
+    "check_time",
+    "integrated_motion",
+    "is_exact",
+    "parameter_draws",
+    "peak",
+    "predict",
+    "profile_motion",
+    "read_motion_csv",
+    "sampled_motion",
+]

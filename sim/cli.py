@@ -9,11 +9,11 @@ from pathlib import Path
 
 from analysis.model.model_json import IdentifiedModel
 from analysis.model.report_constants import RUNS, report_model
-from analysis.predict import DRAWS, predict
+from analysis.predict import DRAWS, base_motion, predict
 from rig.cli_support import add_units_argument, guarded, older_spelling
 from rig.errors import DataError
 from sim import cli_generate, serve
-from sim.response import base_motion, format_prediction, read_model, write_csv, write_plot
+from sim.response import format_prediction, read_model, write_csv, write_plot
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,29 +13,21 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.identify.loading import csv_column, read_csv_table
 from analysis.model.model_json import IdentifiedModel, model_from_json
 from analysis.model.report_constants import report_model
 from analysis.predict import (
-    BaseMotion,
     Peak,
     Prediction,
-    integrated_motion,
     peak,
-    profile_motion,
-    sampled_motion,
 )
 from analysis.simulate import Response, simulate
 from rig.errors import DataError
 from rig.profile import load_profile
-from rig.units import STANDARD_GRAVITY, factor, from_si
+from rig.units import STANDARD_GRAVITY, from_si
 
 # column → SI unit; the US unit comes from rig.units
 COLUMNS = {"t": "s", "u": "m", "x": "m", "z": "m", "zd": "m/s", "xdd": "m/s^2"}
 US = {"s": "s", "m": "in", "m/s": "in/s", "m/s^2": "in/s^2", "N": "lb"}
-# the units a motion CSV may give its displacement or acceleration column in
-LENGTH_UNITS = ("m", "in", "ft")
-ACCELERATION_UNITS = ("m/s^2", "in/s^2", "g")
 
 
 def run_response(run: str, constants: str = "average") -> Response:
@@ -59,32 +51,6 @@ def read_model(path: Path) -> IdentifiedModel:
         return model_from_json(doc)
     except DataError as e:
         raise DataError(f"{path}: {e}") from None
-
-
-def base_motion(spec: str) -> BaseMotion:
-    """A profile (A, B, C, a TOML file) or a CSV record of u(t) or a(t)."""
-    if Path(spec).suffix.lower() == ".csv":
-        return read_motion_csv(Path(spec))
-    return profile_motion(spec)
-
-
-def read_motion_csv(path: Path) -> BaseMotion:
-    """`t [s],u [in]` (table displacement) or `t [s],a [g]` (base acceleration); other
-    columns are ignored. The displacement or acceleration must name its unit."""
-    columns, rows = read_csv_table(path)
-    if "t" not in columns or not ({"u", "a"} & set(columns)):
-        raise DataError(f"{path}: need columns t and u (table displacement) or t and a (base "
-                        f"acceleration), found {', '.join(columns)}")
-    name, allowed = ("u", LENGTH_UNITS) if "u" in columns else ("a", ACCELERATION_UNITS)
-    t_unit, unit = columns["t"][1], columns[name][1]
-    if t_unit not in (None, "s"):
-        raise DataError(f"{path}: time must be in s, header says {t_unit!r}")
-    if unit not in allowed:
-        raise DataError(f"{path}: column {name} needs its unit in the header, one of "
-                        f"{', '.join(allowed)} (e.g. '{name} [{allowed[1]}]'), got {unit!r}")
-    t = csv_column(path, rows, columns["t"][0], "t")
-    v = csv_column(path, rows, columns[name][0], name) * factor(unit)
-    return (sampled_motion if name == "u" else integrated_motion)(t, v, str(path))
 
 
 LABELS = {"u": "table displacement u", "z": "relative displacement z",
