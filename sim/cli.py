@@ -7,13 +7,13 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.model.model_json import IdentifiedModel
+from analysis.model.model_json import IdentifiedModel, read_model
 from analysis.model.report_constants import RUNS, report_model
 from analysis.predict import DRAWS, base_motion, predict
 from rig.cli_support import add_units_argument, guarded, older_spelling
 from rig.errors import DataError
 from sim import cli_generate, serve
-from sim.response import format_prediction, read_model, write_csv, write_plot
+from sim.response import format_prediction, write_csv, write_plot
 
 
 def build_parser() -> argparse.ArgumentParser:

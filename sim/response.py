@@ -8,12 +8,10 @@ a figure), converting units at the edge.
 from __future__ import annotations
 
 import csv
-import json
 from pathlib import Path
 
 import numpy as np
 
-from analysis.model.model_json import IdentifiedModel, model_from_json
 from analysis.model.report_constants import report_model
 from analysis.predict import (
     Peak,
@@ -21,7 +19,6 @@ from analysis.predict import (
     peak,
 )
 from analysis.simulate import Response, simulate
-from rig.errors import DataError
 from rig.profile import load_profile
 from rig.units import STANDARD_GRAVITY, from_si
 
@@ -39,18 +36,6 @@ def peaks(r: Response) -> list[Peak]:
     """Largest magnitude of each response variable and when it occurs."""
     return [peak(name, getattr(r, name), r.t, unit)
             for name, unit in (("u", "m"), ("z", "m"), ("zd", "m/s"), ("xdd", "m/s^2"))]
-
-
-def read_model(path: Path) -> IdentifiedModel:
-    """The identified model of an `analysis fit --json` file."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not a JSON file: {e}") from None
-    try:
-        return model_from_json(doc)
-    except DataError as e:
-        raise DataError(f"{path}: {e}") from None
 
 
 LABELS = {"u": "table displacement u", "z": "relative displacement z",

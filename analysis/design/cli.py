@@ -23,7 +23,7 @@ from analysis.design.sensitivity import TOLERANCE
 from analysis.design.space import EQ10, check_free, design_space
 from analysis.design.threat import read_threat
 from analysis.model.isolator import IsolatorModel
-from analysis.model.model_json import model_from_json
+from analysis.model.model_json import read_model
 from analysis.model.report_constants import report_model
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import add_units_argument
@@ -71,7 +71,7 @@ def run_design(args: argparse.Namespace) -> int:
                     parse_quantity(args.max_stroke, "length", "--max-stroke"))
     if args.samples < 2 or not 0 < args.tolerance < 100:
         raise DataError("--samples needs at least 2 and --tolerance a percentage in (0, 100)")
-    model = read_fit_model(args.fit) if args.fit else report_model("average")
+    model = read_model(args.fit).model if args.fit else report_model("average")
     mass = (args.mass if args.mass is not None
             else float(to_si(args.mass_lb, "lbm")) if args.mass_lb is not None else None)
     if mass is not None:
@@ -105,18 +105,6 @@ def run_design(args: argparse.Namespace) -> int:
 
         print(f"wrote {write_report(result, args.report, args.units)}")
     return 0
-
-
-def read_fit_model(path: Path) -> IsolatorModel:
-    """The identified model of an `analysis fit --json` file; DataError names the file."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not a JSON file: {e}") from None
-    try:
-        return model_from_json(doc).model
-    except DataError as e:
-        raise DataError(f"{path}: {e}") from None
 
 
 def _free(text: str | None, model: IsolatorModel) -> list[str]:

@@ -27,8 +27,11 @@ prediction of the mass's motion leaves it out.
 
 from __future__ import annotations
 
+import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -194,3 +197,14 @@ def _number(d: dict, key: str, where: str = MODEL_KEY) -> float:
         raise DataError(f"fit JSON {where}.{key} is {v!r}, not a finite number")
     return float(v)
 
+
+def read_model(path: str | os.PathLike[str]) -> IdentifiedModel:
+    """The identified model of an `analysis fit --json` file; DataError names the file."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not a JSON file: {e}") from None
+    try:
+        return model_from_json(doc)
+    except DataError as e:
+        raise DataError(f"{path}: {e}") from None
