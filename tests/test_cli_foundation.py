@@ -92,3 +92,12 @@ def test_installed_console_scripts_run_the_main_job(tmp_path):
     assert (tmp_path / "report" / "index.html").exists()
     doc = json.loads((tmp_path / "report" / "fit.json").read_text())
     assert {"parameters", "effects_added", "error_before", "error_after", "loop"} <= set(doc)
+    # then the README's next two: predict and design with the isolator just identified
+    for line in (ln for ln in readme.splitlines() if ln.strip().startswith(
+            ("sim response --model report/fit.json", "analysis design --threat A --threat"))):
+        argv = line.split()
+        done = subprocess.run([str(bin_dir / argv[0]), *argv[1:]], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0 and "Traceback" not in done.stderr, line + done.stderr
+        assert "peak" in done.stdout or "optimum" in done.stdout, done.stdout
+    assert (tmp_path / "report" / "design" / "index.html").is_file()  # both ran: none skipped
