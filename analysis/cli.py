@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from analysis.cli_fit import add_fit_parser, run_fit
 from analysis.design.cli import add_design_parser, run_design
 from analysis.force_driven.datasets import add_datasets_parser, run_datasets
+from analysis.lot.cli import add_lot_parser, run_lot_command
 from analysis.model.report_constants import format_table1
 from rig.cli_support import add_units_argument, guarded
 
@@ -21,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_fit_parser(sub)
     add_datasets_parser(sub)
     add_design_parser(sub)
+    add_lot_parser(sub)
     return parser
 
 
@@ -38,6 +40,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return run_datasets(args)
     elif args.command == "design":
         return run_design(args)
+    elif args.command == "lot":
+        return run_lot_command(args)
     return 0
 
 

@@ -11,12 +11,12 @@ from pathlib import Path
 from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_force_fit
 from analysis.identify.foreign import parse_channels
 from analysis.identify.loading import load_runs
-from analysis.identify.output_error import Z95
-from analysis.identify.pipeline import IsolatorFit, identify
+from analysis.identify.pipeline import identify
 from analysis.identify.report_format import fit_json, format_fit
-from analysis.loop import LoopResult, LoopRun, close_loop
-from analysis.loop.report import format_loop, loop_json
-from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
+from analysis.loop import close_loop
+from analysis.loop.report import format_loop, loop_json, loop_model_json, with_loop
+from analysis.loop.runs import loop_runs
+from analysis.model.model_json import MODEL_KEY
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import LENGTH_UNIT, add_units_argument
 from rig.errors import DataError
@@ -88,38 +88,3 @@ def run_fit(args: argparse.Namespace) -> int:
         page = write_report(fit, args.report, loop, args.files, args.units or "us")
         print(f"wrote {page}")
     return 0
-
-
-def loop_runs(fit: IsolatorFit) -> list[LoopRun]:
-    """The prepared runs as the loop reads them: the same input estimate and derivatives."""
-    return [LoopRun(p.oe, p.oe.motion(p.oe.t, 1), p.zd, p.xdd, p.table.method)
-            for p in fit.prepared]
-
-
-def loop_model_json(loop: LoopResult) -> dict:
-    """The model after the loop, effects included, with the covariance of its refit."""
-    f, h = loop.final, loop.final.hypothesis
-    added = ", ".join(loop.effects_added) or "none"
-    return model_json(h.model, f.names, covariance_from(f.std, f.correlation), h.sensor_gain,
-                      h.sensor_delay, source=f"closed loop, effects added: {added}")
-
-
-def with_loop(doc: dict, loop: dict) -> dict:
-    """The fit's JSON with the loop's keys; `parameters` become the final model's.
-
-    The loop refits the constants it frees: their values, std and 95 % interval replace
-    the base fit's, and they are no longer held; what it held keeps the base fit's entry.
-    """
-    merged = {name: dict(entry) for name, entry in doc["parameters"].items()}
-    for name, entry in loop["parameters"].items():
-        mine = merged.setdefault(name, {"held": False})
-        mine["value"], mine["unit"] = entry["value"], entry["unit"]
-        if entry["std"] is not None:
-            v, s = entry["value"], entry["std"]
-            mine.update(std=s, ci95=[v - Z95 * s, v + Z95 * s])
-            mine.pop("held", None)
-        mine.setdefault("std", None)
-    out = {**doc, **{k: v for k, v in loop.items() if k != "parameters"}}
-    out["parameters_base_model"] = doc["parameters"]
-    out["parameters"] = merged
-    return out

@@ -69,7 +69,7 @@ def write_report(fit: IsolatorFit, directory: Path, loop: LoopResult | None = No
 
 def _after_loop(fit: IsolatorFit, loop: LoopResult) -> dict[str, np.ndarray]:
     """Run name → x (m) the final model, effects included, predicts on the fit's runs (the
-    loop's runs are the fit's: `cli_fit.loop_runs`)."""
+    loop's runs are the fit's: `loop.runs.loop_runs`)."""
     predicted = predict(loop.final.hypothesis, [p.oe for p in fit.prepared])
     return {p.run.name: x[0] for p, x in zip(fit.prepared, predicted)}
 

@@ -12,7 +12,7 @@ from analysis.model.report_constants import RUNS, report_model
 from analysis.predict import DRAWS, base_motion, predict
 from rig.cli_support import add_units_argument, guarded, older_spelling
 from rig.errors import DataError
-from sim import cli_generate, serve
+from sim import cli_generate, cli_lot, serve
 from sim.response import format_prediction, write_csv, write_plot
 
 
@@ -45,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="write every sample to this CSV file")
     p.add_argument("--plot", type=Path, metavar="PNG", help="write a figure of the response")
     cli_generate.add_parser(sub)
+    cli_lot.add_parser(sub)
     serve.add_parser(sub)
     return parser
 
@@ -59,6 +60,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return run_response_command(args)
     elif args.command == "generate":
         return cli_generate.run(args)
+    elif args.command == "generate-lot":
+        return cli_lot.run(args)
     elif args.command == "serve":
         return serve.run(args)
     return 0

@@ -97,7 +97,7 @@ def test_installed_console_scripts_run_the_main_job(tmp_path):
             ("sim response --model report/fit.json", "analysis design --threat A --threat"))):
         argv = line.split()
         done = subprocess.run([str(bin_dir / argv[0]), *argv[1:]], cwd=tmp_path,
-                              capture_output=True, text=True, timeout=300)
+                              capture_output=True, text=True, timeout=300, check=False)
         assert done.returncode == 0 and "Traceback" not in done.stderr, line + done.stderr
         assert "peak" in done.stdout or "optimum" in done.stdout, done.stdout
     assert (tmp_path / "report" / "design" / "index.html").is_file()  # both ran: none skipped

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from analysis.cli_fit import loop_runs
+from analysis.loop.runs import loop_runs
 from analysis.identify.pipeline import MeasuredRun, identify
 from analysis.identify.report_format import SHOWN, fit_json
 from analysis.loop import close_loop

@@ -62,13 +62,17 @@ class Archive:
         return np.arange(start, self.values.shape[0])
 
     @property
+    def peaks(self) -> Peaks:
+        return Peaks(self.accel, self.stroke)
+
+    @property
     def worst_accel(self) -> np.ndarray:
         """(N,) the largest over the threats."""
-        return self.accel.max(axis=1)
+        return self.peaks.worst_accel
 
     @property
     def worst_stroke(self) -> np.ndarray:
-        return self.stroke.max(axis=1)
+        return self.peaks.worst_stroke
 
     def score(self, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
         return problem.score(self.worst_accel, self.worst_stroke)

@@ -6,8 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.identify.output_error import Z95
 from analysis.loop.refit import Fit
 from analysis.loop.result import LoopResult, Step
+from analysis.model.model_json import covariance_from, model_json
 from rig.units import from_si, us_unit
 
 # the model's own term coefficients are reported with the loop's effects
@@ -140,3 +142,32 @@ def loop_figures(result: LoopResult, out: Path, units: str = "si") -> list[Path]
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def loop_model_json(loop: LoopResult) -> dict:
+    """The model after the loop, effects included, with the covariance of its refit."""
+    f, h = loop.final, loop.final.hypothesis
+    added = ", ".join(loop.effects_added) or "none"
+    return model_json(h.model, f.names, covariance_from(f.std, f.correlation), h.sensor_gain,
+                      h.sensor_delay, source=f"closed loop, effects added: {added}")
+
+
+def with_loop(doc: dict, loop: dict) -> dict:
+    """The fit's JSON with the loop's keys; `parameters` become the final model's.
+
+    The loop refits the constants it frees: their values, std and 95 % interval replace
+    the base fit's, and they are no longer held; what it held keeps the base fit's entry.
+    """
+    merged = {name: dict(entry) for name, entry in doc["parameters"].items()}
+    for name, entry in loop["parameters"].items():
+        mine = merged.setdefault(name, {"held": False})
+        mine["value"], mine["unit"] = entry["value"], entry["unit"]
+        if entry["std"] is not None:
+            v, s = entry["value"], entry["std"]
+            mine.update(std=s, ci95=[v - Z95 * s, v + Z95 * s])
+            mine.pop("held", None)
+        mine.setdefault("std", None)
+    out = {**doc, **{k: v for k, v in loop.items() if k != "parameters"}}
+    out["parameters_base_model"] = doc["parameters"]
+    out["parameters"] = merged
+    return out

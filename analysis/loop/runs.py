@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from analysis.loop.candidates import Candidate
 from analysis.loop.recent import Recent
 from analysis.loop.refit import Fit, Hypothesis, predict
 from analysis.table_motion import estimate_table_motion
+
+if TYPE_CHECKING:  # the pipeline imports the loop's callers; only its type is needed here
+    from analysis.identify.pipeline import IsolatorFit
 
 
 @dataclass(frozen=True)
@@ -80,3 +84,9 @@ def run_errors(fit: Fit, runs: Sequence[LoopRun]) -> dict[str, dict[str, float]]
                     r.data.sigma_x, p[0], r.zd, r.xdd)
         out[r.data.name] = e.as_dict()
     return out
+
+
+def loop_runs(fit: IsolatorFit) -> list[LoopRun]:
+    """The prepared runs as the loop reads them: the same input estimate and derivatives."""
+    return [LoopRun(p.oe, p.oe.motion(p.oe.t, 1), p.zd, p.xdd, p.table.method)
+            for p in fit.prepared]

@@ -1,0 +1,2 @@
+"""A production lot: every unit identified as `analysis fit` does, on Dask, and judged
+against the others (`docs/lot.md`)."""
