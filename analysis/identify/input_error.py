@@ -29,6 +29,7 @@ import numpy as np
 from analysis.identify.output_error import (
     OutputErrorFit,
     RunData,
+    determined_gram_inverse,
     gram_inverse,
     with_log_covariance,
 )
@@ -116,7 +117,7 @@ def input_sensitivities(model: IsolatorModel, runs: Sequence[RunData],
             Jx[:, j] = (xs[k + 1 + j][:n] - x0) / run.sigma_x / h[j]
             # noise: what the few slow parameters average (white σ of u's low frequencies)
             Ju[:, j] = (motions[1 + j](run.t) - u0) / noise / h[j]
-        out.append((Jx, gram_inverse(Ju)))
+        out.append((Jx, determined_gram_inverse(Ju)))
         k += 1 + h.size
     return out
 

@@ -51,11 +51,31 @@ def gram_inverse(J: np.ndarray) -> np.ndarray:
     the largest) gets the variance of that floor, a very large one, where a
     pseudo-inverse would give it none.
     """
+    return _svd_gram_inverse(J, drop_undetermined=False)
+
+
+def determined_gram_inverse(J: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁻¹ on the directions J determines, zero on those it does not.
+
+    For the covariance of the table-motion estimate, whose undetermined directions are
+    not the data's to propagate: the duration of a 0.7 ms ramp (shorter than one sample,
+    fitted to a lagged servo's corner) moves no sample of u, so the record says
+    nothing about it, yet it moves the simulated x between samples. With
+    `gram_inverse`'s floor it got a variance of ~1e12, and that times its sensitivity
+    put ±2e6 lb/in on k1 (unseen campaign 1205); what the samples do not determine is
+    left out of the input's share instead.
+    """
+    return _svd_gram_inverse(J, drop_undetermined=True)
+
+
+def _svd_gram_inverse(J: np.ndarray, drop_undetermined: bool) -> np.ndarray:
     _, sv, vt = np.linalg.svd(np.asarray(J, float), full_matrices=False)
     if sv.size == 0:
         return np.zeros((J.shape[1], J.shape[1]))
-    sv = np.maximum(sv, GRAM_RCOND * max(float(sv[0]), np.finfo(float).tiny))
-    w = vt.T / sv
+    floor = GRAM_RCOND * max(float(sv[0]), np.finfo(float).tiny)
+    if drop_undetermined:
+        vt, sv = vt[sv > floor], sv[sv > floor]
+    w = vt.T / np.maximum(sv, floor)
     return w @ w.T
 
 
