@@ -5,7 +5,7 @@ mass sensor streams 5,760 serial frames/s (16-byte frames at 921,600 baud), and 
 
 A source process (this file with --source RATE) serves the socketcand bus with a device
 sending TableSensor frames at RATE and a PtySensor at 5,760 frames/s. This process logs
-them as a run does: rig.acquire receivers, rig.recorder.Recorder, rig.runfile.RunWriter.
+them as a run does: rig.run.receive receivers, rig.run.recorder.Recorder, rig.runfile.RunWriter.
 Baseline, measured in the same run at the same rates: a bare receive loop (python-can
 recv + serial read, no decoding, no file). The ratio rig CPU / baseline CPU is what
 decoding and logging cost; losses come from the sensors' sequence counters.
@@ -53,9 +53,9 @@ def source(rate: float) -> None:
 
 
 def measure(rate: float, seconds: float, logging: bool) -> dict:
-    from rig.acquire import Receivers, open_bus, open_port
     from rig.config import load_config
-    from rig.recorder import Recorder
+    from rig.run.receive import Receivers, open_bus, open_port
+    from rig.run.recorder import Recorder
     from rig.runfile import RunInfo, RunWriter
 
     sources = [subprocess.Popen([sys.executable, __file__, "--source", str(r)],
@@ -99,17 +99,19 @@ def measure(rate: float, seconds: float, logging: bool) -> dict:
 
 
 def _drain(receivers, rec, counts: dict) -> None:
+    from rig.run.receive import CanReceived, SerialReceived
+
     q = receivers.queue
     while not q.empty():
         item = q.get_nowait()
-        if item[0] == "can":
+        if isinstance(item, CanReceived):
             counts["can"] += 1
             if rec is not None:
-                rec.can_frame(item[1])
-        elif item[0] == "serial":
-            counts["serial"] += len(item[2])
+                rec.can_frame(item.frame)
+        elif isinstance(item, SerialReceived):
+            counts["serial"] += len(item.frames)
             if rec is not None:
-                rec.serial_frames(*item[1:])
+                rec.serial_frames(item.host_s, item.frames, item.stats)
 
 
 def main() -> None:

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from rig.config import load_config
-from rig.export_mdf import export_mdf
-from rig.import_log import FORMATS, import_log
+from rig.convert.export_mdf import export_mdf
+from rig.convert.import_log import FORMATS, import_log
 
 
 def add_parsers(sub: Any) -> None:

@@ -12,15 +12,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import can_messages as cm
 from rig.cli_support import add_units_argument
 from rig.config import RigConfig, load_config
 from rig.errors import ConfigError, DataError, LimitError
 from rig.limits import Margins, check_all, limit_error
 from rig.profile import BUILTIN, load_profile
+from rig.run.runner import RunResult, run_profile
+from rig.run.sim_process import SimProcess
 from rig.runfile import check_output_dir, check_readable, list_runs, read_status, recover
-from rig.runner import RunResult, run_profile
-from rig.simproc import SimProcess
+from rig.wire.bus_load import check_bus_load
 
 CAMPAIGN = ("A", "B", "C")
 DEFAULT_PAUSE_S = 5.0
@@ -78,7 +78,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     margins = _checked(config, args.profile, args.units)  # LimitError → exit 2
     print(margins.format(args.units))
-    print(cm.check_bus_load(config).format())
+    print(check_bus_load(config).format())
     return 0
 
 

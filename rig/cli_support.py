@@ -6,7 +6,7 @@
   plan's violations follow, one per indented line: sixteen of them on one line
   were unreadable.
 - Ctrl-C → `prog: interrupted`, exit 130 (a run in progress aborts in order
-  first: rig.runner).
+  first: rig.run.runner).
 - Anything else is a bug → `prog: internal error: Type: message` on one line,
   exit 3; set RIG_TRACEBACK=1 to see the traceback.
 """

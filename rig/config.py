@@ -6,39 +6,32 @@ numbers in Hz under keys ending in `_hz` (rig.units has no frequency unit). Ever
 problem is a ConfigError naming the file and the dotted field, e.g.
 `rig.toml: table.actuator[3].piston_area: must be > 0 in^2, got -2`. Actuators are
 numbered from 1, in the file's order. `parse_config(config_to_dict(c), s) == c`.
+A table is read field by field by rig.config_fields.Section.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Mapping, NoReturn
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rig.config_fields import Section, show
 from rig.errors import ConfigError
 from rig.paths import data_file
-from rig.units import factor
 
 N_ACTUATORS = 6
 BACKENDS = ("sim", "hardware")
 SERIAL_FRAME_BITS = 16 * 10  # design.md §2: 16-byte sensor frames, 8N1 = 10 bits a byte
 MAX_CLASSICAL_BITRATE = 1_000_000
 MAX_STROKE = 1.0  # m: ActuatorSetpoint.Position in data/isolator_rig.dbc carries ±1 m
-#: unit names a quantity of each kind may be stated in; the first is SI
-UNITS: dict[str, tuple[str, ...]] = {
-    "length": ("m", "in", "ft"),
-    "area": ("m^2", "in^2"),
-    "mass": ("kg", "lbm"),
-    "force": ("N", "lb", "lbf"),
-    "flow": ("m^3/s", "gpm"),
-    "acceleration": ("m/s^2", "in/s^2", "g"),
-    "pressure": ("Pa", "psi"),
-}
+
 
 
 @dataclass(frozen=True)
@@ -175,7 +168,7 @@ def load_config(path: str | Path | None = None) -> RigConfig:
 
 def parse_config(doc: Mapping[str, Any], source: str) -> RigConfig:
     """Build a RigConfig from a parsed TOML document; ConfigError names the field."""
-    top = _Section(doc, source, "")
+    top = Section(doc, source, "")
     backend = top.choice("backend", BACKENDS)
     table = _table(top.section("table"))
     sensors = top.section("sensors")
@@ -223,22 +216,22 @@ def config_to_dict(config: RigConfig) -> dict[str, Any]:
     }
 
 
-def _table(s: _Section) -> Table:
+def _table(s: Section) -> Table:
     side = s.quantity("platform_side", "length")
     masses = [s.quantity(k, "mass") for k in ("platform_mass", "payload_mass")]
     pressure = s.quantity("supply_pressure", "pressure")
     raw = s.get("actuator")
     if not isinstance(raw, list) or len(raw) != N_ACTUATORS:
-        got = f"{len(raw)}" if isinstance(raw, list) else _show(raw)
+        got = f"{len(raw)}" if isinstance(raw, list) else show(raw)
         s.fail("actuator", f"needs exactly {N_ACTUATORS} [[table.actuator]] tables, got {got}")
-    actuators = tuple(_actuator(_Section(a, s.source, f"{s.path}.actuator[{i}]"), i, side)
+    actuators = tuple(_actuator(Section(a, s.source, f"{s.path}.actuator[{i}]"), i, side)
                       for i, a in enumerate(raw, start=1))
     s.close()
     _check_layout(actuators, s)
     return Table(actuators, side, masses[0], masses[1], pressure)
 
 
-def _actuator(s: _Section, i: int, side: float) -> Actuator:
+def _actuator(s: Section, i: int, side: float) -> Actuator:
     index = s.integer("index", low=1)
     if index != i:
         s.fail("index", f"must be {i}: actuators are listed in order 1..{N_ACTUATORS}, got {index}")
@@ -262,7 +255,7 @@ def _actuator(s: _Section, i: int, side: float) -> Actuator:
     return Actuator(index=index, name=name, line_of_action=unit, position=position, **kw)
 
 
-def _check_layout(actuators: tuple[Actuator, ...], s: _Section) -> None:
+def _check_layout(actuators: tuple[Actuator, ...], s: Section) -> None:
     """The six must hold the platform in x, y and yaw, or some motion is unguided."""
     n = np.array([a.line_of_action for a in actuators])
     r = np.array([a.position for a in actuators])
@@ -273,7 +266,7 @@ def _check_layout(actuators: tuple[Actuator, ...], s: _Section) -> None:
         s.fail("actuator", f"the lines of action hold only {rank} of x, y and yaw; need all 3")
 
 
-def _sensor(s: _Section) -> Sensor:
+def _sensor(s: Section) -> Sensor:
     scale = s.quantity("scale", "length", low=None)
     if scale == 0:
         s.fail("scale", "must not be 0")
@@ -284,16 +277,16 @@ def _sensor(s: _Section) -> Sensor:
     return result
 
 
-def _can(s: _Section) -> CanBus:
+def _can(s: Section) -> CanBus:
     interface = s.string("interface")
     channel = s.get("channel")
     if isinstance(channel, bool) or not isinstance(channel, (str, int)) or channel == "":
-        s.fail("channel", f"must be a non-empty string or an integer, got {_show(channel)}")
+        s.fail("channel", f"must be a non-empty string or an integer, got {show(channel)}")
     bitrate = s.integer("bitrate", low=1, high=MAX_CLASSICAL_BITRATE)
     budget = s.number("load_budget", low=0.0, high=1.0)
     extra = s.get("extra", {})
     if not isinstance(extra, dict):
-        s.fail("extra", f"must be a table of can.Bus keyword arguments, got {_show(extra)}")
+        s.fail("extra", f"must be a table of can.Bus keyword arguments, got {show(extra)}")
     clash = sorted(set(extra) & {"interface", "channel", "bitrate"})
     if clash:
         s.fail(f"extra.{clash[0]}", "set it in [can] itself, not in [can.extra]")
@@ -303,131 +296,15 @@ def _can(s: _Section) -> CanBus:
     return CanBus(interface, channel, bitrate, budget, MappingProxyType(dict(extra)))
 
 
-def _serial(s: _Section) -> SerialPort:
+def _serial(s: Section) -> SerialPort:
     result = SerialPort(s.string("path"), s.integer("baud", low=1))
     s.close()
     return result
 
 
-def _rates(top: _Section) -> Rates:
+def _rates(top: Section) -> Rates:
     s = top.section("rates")
     result = Rates(*(s.number(k, low=0.0, high=10_000.0)
                      for k in ("setpoint_hz", "feedback_hz", "heartbeat_hz")))
     s.close()
     return result
-
-
-_MISSING = object()
-
-
-class _Section:
-    """A TOML table being read: remembers the keys it used, so `close` can name leftovers."""
-
-    def __init__(self, doc: object, source: str, path: str) -> None:
-        if not isinstance(doc, Mapping):
-            raise ConfigError(source, path, f"must be a table, got {_show(doc)}")
-        self.doc, self.source, self.path, self.used = doc, source, path, set()
-
-    def where(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def fail(self, key: str, problem: str) -> NoReturn:
-        raise ConfigError(self.source, self.where(key), problem)
-
-    def get(self, key: str, default: Any = _MISSING) -> Any:
-        self.used.add(key)
-        if key in self.doc:
-            return self.doc[key]
-        if default is _MISSING:
-            self.fail(key, "missing")
-        return default
-
-    def section(self, key: str) -> _Section:
-        return _Section(self.get(key), self.source, self.where(key))
-
-    def close(self) -> None:
-        unknown = sorted(set(self.doc) - self.used)
-        if unknown:
-            self.fail(unknown[0], f"unknown key (known here: {', '.join(sorted(self.used))})")
-
-    def string(self, key: str) -> str:
-        v = self.get(key)
-        if not isinstance(v, str) or not v.strip():
-            self.fail(key, f"must be a non-empty string, got {_show(v)}")
-        return v
-
-    def choice(self, key: str, choices: tuple[str, ...]) -> str:
-        v = self.get(key)
-        if v not in choices:
-            self.fail(key, f"must be one of {', '.join(map(repr, choices))}, got {_show(v)}")
-        return v
-
-    def integer(self, key: str, low: int, high: int | None = None) -> int:
-        v = self.get(key)
-        if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(key, f"must be an integer, got {_show(v)}")
-        if v < low or (high is not None and v > high):
-            bounds = f"in {low}..{high}" if high is not None else f">= {low}"
-            self.fail(key, f"must be {bounds}, got {v}")
-        return v
-
-    def number(self, key: str, low: float | None = None, high: float | None = None,
-               unit: str = "", value: Any = _MISSING, strict: bool = True) -> float:
-        """A finite number; `low` is exclusive unless not `strict`, `high` inclusive."""
-        v = self.get(key) if value is _MISSING else value
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
-            self.fail(key, f"must be a finite number, got {_show(v)}")
-        u = f" {unit}" if unit else ""
-        if low is not None and (v <= low if strict else v < low):
-            self.fail(key, f"must be {'>' if strict else '>='} {low:g}{u}, got {v!r}")
-        if high is not None and v > high:
-            self.fail(key, f"must be <= {high:g}{u}, got {v!r}")
-        return float(v)
-
-    def _unit(self, key: str, raw: Any, kind: str | None) -> tuple[Any, float]:
-        """(value, SI factor) of a `{ value, unit }` table; a bare value if `kind` is None."""
-        if kind is None:
-            return raw, 1.0
-        allowed = UNITS[kind]
-        if not isinstance(raw, Mapping) or set(raw) != {"value", "unit"}:
-            self.fail(key, f'must be {{ value = …, unit = "{allowed[0]}" }} (a {kind} in '
-                      f"{', '.join(allowed)}), got {_show(raw)}")
-        if raw["unit"] not in allowed:
-            self.fail(f"{key}.unit", f"must be a {kind} unit ({', '.join(allowed)}), "
-                      f"got {_show(raw['unit'])}")
-        return raw["value"], factor(raw["unit"])
-
-    def quantity(self, key: str, kind: str, low: float | None = 0.0,
-                 strict: bool = True) -> float:
-        """A `{ value, unit }` scalar of `kind`, > `low` (>= if not strict), in SI."""
-        raw = self.get(key)
-        value, scale = self._unit(key, raw, kind)
-        unit = raw["unit"]
-        v = self.number(key, low=low, unit=unit, value=value, strict=strict) * scale
-        if not math.isfinite(v):
-            self.fail(key, f"{value!r} {unit} overflows")
-        return v
-
-    def vector(self, key: str, kind: str | None = None) -> tuple[float, float]:
-        """An [x, y] pair of finite numbers, bare or `{ value = [x, y], unit }`, in SI."""
-        value, scale = self._unit(key, self.get(key), kind)
-        if not isinstance(value, list) or len(value) != 2:
-            self.fail(key, f"must be a pair [x, y], got {_show(value)}")
-        x, y = (self.number(key, value=c) * scale for c in value)
-        return (x, y)
-
-
-def _finite(v: int | float) -> bool:
-    try:
-        return math.isfinite(v)
-    except OverflowError:  # an integer beyond any float
-        return False
-
-
-def _show(v: object) -> str:
-    if isinstance(v, (Mapping, list)):
-        text = repr(dict(v) if isinstance(v, Mapping) else v)
-        return text if len(text) <= 60 else text[:57] + "..."
-    if isinstance(v, (bool, int, float, str)):
-        return repr(v)
-    return type(v).__name__

@@ -28,7 +28,7 @@ START sets the count to the start sample, so while RUNNING the tick is the index
 of the setpoint being played; it keeps counting after the run. Each feedback
 frame carries the tick of its measurement as `Sequence` (16 bits, wrapping), so
 the rig compares a feedback with exactly the setpoint played at that instant,
-whatever the frame's delivery latency (rig.interlocks).
+whatever the frame's delivery latency (rig.run.interlocks).
 
 START takes effect the instant it arrives (`clock`), as on a controller whose
 servo tick is short. The plant computes a chunk (20–40 ms) ahead, so the grid
@@ -49,8 +49,8 @@ from collections.abc import Callable, Mapping
 
 import can
 
-from rig import can_messages as cm
-from rig.can_messages import Command, CommandKind, Fault, NodeState, Setpoint
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import CommandKind, Fault, NodeState, RigCommand, Setpoint
 from sim.hermite import quintic_at
 
 WATCHDOG_S = 0.1  # s a needed setpoint may be late before the actuator holds
@@ -122,11 +122,11 @@ class ActuatorController:
                 self.setpoints_received += 1
         elif msg.arbitration_id == cm.COMMAND_ID:
             cmd = cm.from_can(msg)
-            assert isinstance(cmd, Command)
+            assert isinstance(cmd, RigCommand)
             with self._lock:
                 self._command(cmd)
 
-    def _command(self, cmd: Command) -> None:
+    def _command(self, cmd: RigCommand) -> None:
         if self.state == NodeState.SAFE_STATE and cmd.command != CommandKind.ENABLE:
             return
         if cmd.command == CommandKind.ENABLE:

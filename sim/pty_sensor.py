@@ -28,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from rig.errors import ConfigError
-from rig.serial_frame import FRAME_SIZE, Status, encode_frame
+from rig.wire.serial_frame import FRAME_SIZE, Status, encode_frame
 
 log = logging.getLogger(__name__)
 

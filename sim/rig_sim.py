@@ -31,10 +31,10 @@ import numpy as np
 
 from analysis.model.isolator import IsolatorModel
 from analysis.model.report_constants import report_model
-from rig import can_messages as cm
-from rig.can_messages import NodeState
 from rig.config import RigConfig, Sensor
 from rig.geometry import x_components
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import NodeState
 from sim.devices import ActuatorController, heartbeat, table_sample
 from sim.effects import Effect, with_effects
 from sim.faults import SimFaults

@@ -1,4 +1,5 @@
-"""rig.can_messages: the DBC, typed round trips, counters and the bus-load budget."""
+"""rig.wire.can_messages and rig.wire.bus_load: the DBC, typed round trips, counters and the
+bus-load budget."""
 
 from __future__ import annotations
 
@@ -9,11 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig import can_messages as cm
-from rig.can_messages import (Command, CommandKind, Fault, Feedback, Heartbeat, NodeState,
-                              Setpoint, TableSample)
 from rig.config import MAX_STROKE, load_config
 from rig.errors import DataError, LimitError
+from rig.wire import bus_load as bl
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import (
+    CommandKind,
+    Fault,
+    Feedback,
+    Heartbeat,
+    NodeState,
+    RigCommand,
+    Setpoint,
+    TableSample,
+)
 
 DB = cm.database()
 RESOLUTION = 1e-6  # m, Position signals
@@ -51,7 +61,7 @@ def test_every_dbc_message_has_a_typed_counterpart() -> None:
     examples = ([Setpoint(i, 0, 0.0) for i in cm.ACTUATORS]
                 + [Feedback(i, 0, 0.0, NodeState.ENABLED) for i in cm.ACTUATORS]
                 + [Heartbeat(n, 0, NodeState.BOOT) for n in cm.NODES]
-                + [TableSample(0, 0, 0), Command(CommandKind.ENABLE)])
+                + [TableSample(0, 0, 0), RigCommand(CommandKind.ENABLE)])
     ids = {cm.encode(m)[0] for m in examples}
     assert ids == cm.known_ids()
     assert len(ids) == len(examples)
@@ -120,7 +130,7 @@ def test_heartbeat_round_trip(node: int, counter: int, state: NodeState) -> None
 @given(command=st.sampled_from(CommandKind), counter=_ints("RigCommand", "Counter"),
        start=_ints("RigCommand", "StartSample"))
 def test_command_round_trip(command: CommandKind, counter: int, start: int) -> None:
-    msg = Command(command, counter, start)
+    msg = RigCommand(command, counter, start)
     assert _round_trip(msg) == msg
 
 
@@ -147,7 +157,7 @@ def test_counters_wrap_on_the_wire_and_unwrap() -> None:
     Feedback(1, 0, -2.0, NodeState.FAULT),
     TableSample(2**23, 0, 0),
     Heartbeat(9, 0, NodeState.BOOT),
-    Command(CommandKind.START, 0, 2**32),
+    RigCommand(CommandKind.START, 0, 2**32),
 ])
 def test_out_of_range_fields_are_refused(msg: cm.RigMessage) -> None:
     with pytest.raises(ValueError):
@@ -174,7 +184,7 @@ def test_bad_frames_are_data_errors(frame_id: int, data: bytes, fragment: str) -
 
 def test_python_can_frames_over_a_virtual_bus() -> None:
     sent = [Setpoint(4, 99, -0.05), Heartbeat(cm.NODE_RIG, 1, NodeState.RUNNING),
-            Command(CommandKind.SAFE_STATE, 2)]
+            RigCommand(CommandKind.SAFE_STATE, 2)]
     with can.Bus(interface="virtual", channel="test_can_messages") as tx, \
             can.Bus(interface="virtual", channel="test_can_messages") as rx:
         for m in sent:
@@ -188,14 +198,14 @@ def test_python_can_frames_over_a_virtual_bus() -> None:
 # --- bus load -------------------------------------------------------------------------------
 
 def test_frame_bits_by_hand() -> None:
-    assert cm.frame_bits(8) == (111, 135)
-    assert cm.frame_bits(0) == (47, 55)
-    best, worst = cm.frame_bits(8)
+    assert bl.frame_bits(8) == (111, 135)
+    assert bl.frame_bits(0) == (47, 55)
+    best, worst = bl.frame_bits(8)
     assert (int(1_000_000 / best), int(1_000_000 / worst)) == (9009, 7407)
 
 
 def test_default_bus_load_by_hand() -> None:
-    load = cm.check_bus_load(load_config())
+    load = bl.check_bus_load(load_config())
     # 6 x 400 setpoints + 6 x 100 feedback + 1000 sensor + 8 nodes x 10 heartbeats
     assert load.frames_per_s == 2400 + 600 + 1000 + 80 == 4080
     assert load.bits_per_s("best") == 4080 * 111
@@ -212,17 +222,17 @@ def test_a_config_over_budget_is_refused() -> None:
     busy = dataclasses.replace(c, rates=dataclasses.replace(c.rates, setpoint=500, feedback=200))
     # 3000 + 1200 + 1000 + 80 = 5280 frames/s: 58.6 % best case, 71.3 % worst case
     with pytest.raises(LimitError) as info:
-        cm.check_bus_load(busy)
+        bl.check_bus_load(busy)
     message = str(info.value)
     for fragment in ("5,280 frames/s", "71.3%", "58.6% best case", "60% budget"):
         assert fragment in message
-    assert not cm.bus_load(busy).fits
-    assert "OVER" in cm.bus_load(busy).format()
+    assert not bl.bus_load(busy).fits
+    assert "OVER" in bl.bus_load(busy).format()
 
 
 def test_the_budget_is_held_against_the_worst_case() -> None:
     c = load_config()
     tight = dataclasses.replace(c, can=dataclasses.replace(c.can, load_budget=0.5))
-    assert cm.bus_load(tight).load_best < 0.5 < cm.bus_load(tight).load_worst
+    assert bl.bus_load(tight).load_best < 0.5 < bl.bus_load(tight).load_worst
     with pytest.raises(LimitError, match="55.1%"):
-        cm.check_bus_load(tight)
+        bl.check_bus_load(tight)

@@ -1,5 +1,5 @@
 """Actuator faults: a stuck valve, a stalled feedback stream, and delivery stalls that must
-not trip anything. In-process simulated rig, plus the interlock on its own (rig.interlocks).
+not trip anything. In-process simulated rig, plus the interlock on its own (rig.run.interlocks).
 
 Feedback carries the servo tick of its measurement (the setpoint index being played),
 so the following error is judged against exactly that setpoint: a stuck valve is
@@ -16,18 +16,18 @@ import can
 import numpy as np
 import pytest
 
-from rig import runner
-from rig.can_messages import Feedback, NodeState
 from rig.config import load_config
 from rig.geometry import actuator_plan
-from rig.interlocks import (
+from rig.profile import load_profile
+from rig.run import runner
+from rig.run.interlocks import (
     FEEDBACK_LIVENESS_S,
     FOLLOWING_LIMIT_M,
     SERVO_LAG_S,
     START_GRACE_S,
     Interlocks,
 )
-from rig.profile import load_profile
+from rig.wire.can_messages import Feedback, NodeState
 from sim.devices import ActuatorController
 from sim.rig_sim import SimRig
 from tests.test_faults_can import (
@@ -181,13 +181,13 @@ def test_an_actuator_never_plays_a_grid_point_before_start_arrived() -> None:
     from its arrival, and the servo tick counts the run from there."""
     now = [100.0]
     act = ActuatorController(1, rate=400.0, clock=lambda: now[0])
-    from rig import can_messages as cm
-    from rig.can_messages import Command, CommandKind, Setpoint
+    from rig.wire import can_messages as cm
+    from rig.wire.can_messages import CommandKind, RigCommand, Setpoint
 
-    act.on_frame(cm.to_can(Command(CommandKind.ENABLE, 1)))
+    act.on_frame(cm.to_can(RigCommand(CommandKind.ENABLE, 1)))
     for i in range(40):
         act.on_frame(cm.to_can(Setpoint(1, i, 0.001 * i)))
-    act.on_frame(cm.to_can(Command(CommandKind.START, 2, 0)))
+    act.on_frame(cm.to_can(RigCommand(CommandKind.START, 2, 0)))
     assert act.target(99.9) == 0.0 and act.started_at is None  # the past: still holding
     assert act.target(100.01) == pytest.approx(0.004)  # 4 samples after arrival
     assert act.started_at == 100.0

@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import can_messages as cm
-from rig.can_messages import Fault, NodeState
-from rig.live import LiveStatus, RunControl
 from rig.profile import load_profile
+from rig.run.runner import RunResult, run_profile
+from rig.run.status import LiveStatus, RunControl
 from rig.runfile import RunFile, open_run
-from rig.runner import RunResult, run_profile
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import Fault, NodeState
 from sim.rig_sim import SimRig
 from sim.socketcand_server import CAN_ERR_BUSOFF, BusFaults
 from tests.test_run_limits import hardware, profile_file
@@ -36,8 +36,8 @@ pytestmark = pytest.mark.usefixtures("no_leaks")
 # Bounds the tests hold a reaction to: the design figure (docs/reliability.md) plus
 # room for a loaded 2-core machine, where a thread may wait 0.1–0.2 s for a core.
 LOAD_MARGIN_S = 0.25
-LIVENESS_BOUND_S = 0.25 + 0.05  # rig.interlocks LIVENESS_S + one pass and the send
-FEEDBACK_BOUND_S = 0.3 + 0.05  # rig.interlocks FEEDBACK_LIVENESS_S + one pass and the send
+LIVENESS_BOUND_S = 0.25 + 0.05  # rig.run.interlocks LIVENESS_S + one pass and the send
+FEEDBACK_BOUND_S = 0.3 + 0.05  # rig.run.interlocks FEEDBACK_LIVENESS_S + one pass and the send
 LOST_BUS_BOUND_S = 0.05 + 0.3 + 0.05  # receiver poll + reconnect timeout + send
 
 

@@ -4,7 +4,7 @@ Every command answers with one line on stderr naming the file and the problem
 and exit code 2, never a traceback. The readers are fuzzed with hypothesis (each
 test bounded by max_examples to a few seconds). A damaged HDF5 file on which the
 HDF5 library itself loops or crashes is caught by reading it in a forked child
-first (rig.runfile_probe).
+first (rig.runfile.probe).
 """
 
 from __future__ import annotations
@@ -23,14 +23,14 @@ from hypothesis import strategies as st
 
 from analysis.cli import main as analysis_main
 from analysis.identify.loading import load_runs
-from rig import can_messages as cm
-from rig import runfile_reader
 from rig.cli import main as rig_main
 from rig.config import load_config
 from rig.errors import ConfigError, DataError
 from rig.paths import data_file
 from rig.profile import load_profile
 from rig.runfile import RunInfo, RunWriter, check_readable, open_run
+from rig.runfile import reader as runfile_reader
+from rig.wire import can_messages as cm
 from sim.rig_sim import SimRig
 from tests.test_faults_can import At, run
 
@@ -298,7 +298,7 @@ def test_a_file_the_hdf5_library_hangs_or_crashes_on_is_reported_not_hung_on(
             pass
         return real(p)
 
-    monkeypatch.setattr("rig.runfile_probe.BASE_TIMEOUT_S", 0.5)
+    monkeypatch.setattr("rig.runfile.probe.BASE_TIMEOUT_S", 0.5)
     monkeypatch.setattr(runfile_reader, "_summary", spins_in_the_child)
     t = time.monotonic()
     assert rig_main(["runs", str(path.parent)]) == 2

@@ -18,9 +18,9 @@ from pathlib import Path
 import h5py
 import pytest
 
-from rig.can_messages import Fault, NodeState
 from rig.paths import data_file
 from rig.runfile import open_run, read_status
+from rig.wire.can_messages import Fault, NodeState
 from sim.rig_sim import SimRig
 from tests.test_faults_can import LOAD_MARGIN_S, measured
 from tests.test_run_limits import profile_file

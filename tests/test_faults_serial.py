@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.serial_frame import FrameDecoder
+from rig.wire.serial_frame import FrameDecoder
 from sim.pty_sensor import SerialFaults
 from sim.rig_sim import SimRig
 from tests.test_faults_can import (

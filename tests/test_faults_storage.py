@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.can_messages import NodeState
 from rig.cli import main
 from rig.errors import DataError
-from rig.live import RunControl
 from rig.profile import load_profile
-from rig.recorder import HOLD_S
+from rig.run.recorder import HOLD_S
+from rig.run.runner import run_profile
+from rig.run.status import RunControl
 from rig.runfile import open_run
-from rig.runner import run_profile
+from rig.wire.can_messages import NodeState
 from sim.rig_sim import SimRig
 from tests.test_faults_can import LOAD_MARGIN_S, At, measured
 from tests.test_run_limits import hardware, profile_file

@@ -15,16 +15,16 @@ import pytest
 
 from analysis.identify.foreign import parse_channels
 from analysis.identify.loading import load_runs
-from rig import can_messages as cm
-from rig.can_messages import Feedback, Heartbeat, MassSample, NodeState, TableSample
 from rig.cli import main as rig_main
-from rig.commands import run_messages
 from rig.config import load_config
 from rig.errors import DataError
 from rig.geometry import ActuatorPlan
 from rig.paths import data_file
+from rig.run.schedule import run_messages
 from rig.runfile import open_run
 from rig.units import INCH, POUND_MASS
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import Feedback, Heartbeat, MassSample, NodeState, TableSample
 
 T0 = 1_700_000_000.0  # Unix s of the log's first frame
 RESOLUTION = 1e-6  # m per count, both sensors (data/rig.toml)

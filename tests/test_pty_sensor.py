@@ -8,7 +8,7 @@ import pytest
 import serial
 
 from rig.errors import ConfigError
-from rig.serial_frame import Frame, FrameDecoder, Status
+from rig.wire.serial_frame import Frame, FrameDecoder, Status
 from sim.pty_sensor import PtySensor, SerialFaults
 
 LIVENESS_S = 5.0  # generous: only a hung sensor takes this long

@@ -18,8 +18,8 @@ import pytest
 from rig.config import load_config
 from rig.errors import ConfigError
 from rig.profile import load_profile
-from rig.runner import run_profile
-from rig.simproc import SimProcess
+from rig.run.runner import run_profile
+from rig.run.sim_process import SimProcess
 from sim.rig_sim import SimRig
 from sim.socketcand_server import SocketcandServer
 from tests.test_run_limits import hardware, profile_file

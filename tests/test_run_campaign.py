@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import can_messages as cm
 from rig.config import load_config
 from rig.runfile import LiveRun, list_runs, open_run
-from rig.serial_frame import FrameDecoder
+from rig.wire import can_messages as cm
+from rig.wire.serial_frame import FrameDecoder
 
 pytestmark = pytest.mark.slow
 NOISE = load_config().table_sensor.noise_rms  # m, both sensors (data/rig.toml)

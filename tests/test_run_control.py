@@ -1,4 +1,4 @@
-"""The run's control surface (rig.live): e-stop from another thread, live listeners.
+"""The run's control surface (rig.run.status): e-stop from another thread, live listeners.
 
 Against the in-process simulated rig of test_run_limits (real socketcand bus,
 real pty, real HDF5): an e-stop mid-run aborts into the safe state and the file
@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.can_messages import NodeState
-from rig.live import LiveStatus, RunControl
 from rig.profile import load_profile
+from rig.run.runner import run_profile
+from rig.run.status import LiveStatus, RunControl
 from rig.runfile import open_run
-from rig.runner import run_profile
+from rig.wire.can_messages import NodeState
 from sim.rig_sim import SimRig
 from tests.test_run_limits import _wait_for, hardware, profile_file
 

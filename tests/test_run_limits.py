@@ -16,14 +16,14 @@ import can
 import numpy as np
 import pytest
 
-from rig import can_messages as cm
-from rig.can_messages import NodeState
 from rig.cli import main
 from rig.config import RigConfig, load_config
 from rig.errors import LimitError
 from rig.profile import load_profile
+from rig.run.runner import run_profile
 from rig.runfile import open_run
-from rig.runner import run_profile
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import NodeState
 from sim.rig_sim import SimRig
 from sim.socketcand_server import BusFaults
 

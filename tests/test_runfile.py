@@ -15,10 +15,20 @@ from hypothesis import strategies as st
 
 from rig.errors import DataError
 from rig.runfile import (
-    CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, SCHEMA_VERSION, ChannelSpec, LiveRun, RunInfo, RunWriter,
-    list_runs, open_run, read_status, recover, standard_channels,
+    CAN_FLAG_ERROR,
+    CAN_FLAG_EXTENDED,
+    SCHEMA_VERSION,
+    ChannelSpec,
+    LiveRun,
+    RunInfo,
+    RunWriter,
+    list_runs,
+    open_run,
+    read_status,
+    recover,
+    standard_channels,
 )
-from rig.runfile_superblock import lookup3, status_flags
+from rig.runfile.superblock import lookup3, status_flags
 
 PROFILE_TOML = 'name = "A"\n[[segment]]\nhold = 1.0\n'
 INFO = RunInfo(

@@ -179,7 +179,7 @@ def test_recover_names_a_missing_file_on_one_line(tmp_path: Path, capsys) -> Non
 # the test can kill the writer in the few-millisecond window where it is not in SWMR mode.
 CLOSER = """
 import sys, time
-import rig.runfile_writer as writer_module
+import rig.runfile.writer as writer_module
 from rig.runfile import RunInfo, RunWriter
 reopen = writer_module.reopen_for_status
 def reopen_and_stall(path):

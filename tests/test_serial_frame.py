@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rig.serial_frame import (
+from rig.wire.serial_frame import (
     FRAME_SIZE,
     SYNC,
     Frame,

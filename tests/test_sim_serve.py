@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 import serial
 
-from rig import can_messages as cm
-from rig.can_messages import Command, CommandKind, Fault, NodeState, Setpoint, TableSample
-from rig.clock_fit import ClockFit
-from rig.commands import LEAD_SAMPLES, run_messages
 from rig.config import load_config
 from rig.geometry import actuator_plan
 from rig.profile import load_profile
-from rig.serial_frame import FrameDecoder
+from rig.run.clock_fit import ClockFit
+from rig.run.schedule import LEAD_SAMPLES, run_messages
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import CommandKind, Fault, NodeState, RigCommand, Setpoint, TableSample
+from rig.wire.serial_frame import FrameDecoder
 from sim.devices import ActuatorController, table_sample
 from sim.plant import ServoAxis
 
@@ -37,7 +37,7 @@ def test_run_messages_enable_prefill_start_stream_stop() -> None:
     config = load_config()
     plan = actuator_plan(config, load_profile("A"))
     msgs = list(run_messages(plan))
-    kinds = [m.message.command for m in msgs if isinstance(m.message, Command)]
+    kinds = [m.message.command for m in msgs if isinstance(m.message, RigCommand)]
     assert kinds == [CommandKind.ENABLE, CommandKind.START, CommandKind.STOP]
     start = next(i for i, m in enumerate(msgs) if getattr(m.message, "command", None)
                  == CommandKind.START)
@@ -100,24 +100,24 @@ def _frame(msg) -> can.Message:
 
 def test_actuator_controller_plays_indexed_setpoints_then_stops_or_holds() -> None:
     act = ActuatorController(1, rate=100.0)
-    act.on_frame(_frame(Command(CommandKind.ENABLE, 1)))
+    act.on_frame(_frame(RigCommand(CommandKind.ENABLE, 1)))
     for i in range(5):
         act.on_frame(_frame(Setpoint(1, i, 0.001 * i)))
-    act.on_frame(_frame(Command(CommandKind.START, 2, 0)))
+    act.on_frame(_frame(RigCommand(CommandKind.START, 2, 0)))
     assert act.target(10.0) == 0.0  # START takes effect here
     assert act.target(10.015) == pytest.approx(0.0015)  # between samples 1 and 2
     assert act.target(10.04) == pytest.approx(0.004)  # the last sample it has
     assert act.faults == Fault.NONE  # not yet late by WATCHDOG_S
     assert act.target(10.3) == pytest.approx(0.004)  # starved: holds …
     assert act.faults & Fault.WATCHDOG_HOLD  # … and says so
-    act.on_frame(_frame(Command(CommandKind.ENABLE, 3)))
+    act.on_frame(_frame(RigCommand(CommandKind.ENABLE, 3)))
     act.on_frame(_frame(Setpoint(1, 0, 0.002)))
-    act.on_frame(_frame(Command(CommandKind.START, 4, 0)))
-    act.on_frame(_frame(Command(CommandKind.STOP, 5)))
+    act.on_frame(_frame(RigCommand(CommandKind.START, 4, 0)))
+    act.on_frame(_frame(RigCommand(CommandKind.STOP, 5)))
     act.target(0.0)
     assert act.target(0.5) == pytest.approx(0.002) and act.faults == Fault.NONE
     assert act.state == NodeState.ENABLED
-    act.on_frame(_frame(Command(CommandKind.SAFE_STATE, 6)))
+    act.on_frame(_frame(RigCommand(CommandKind.SAFE_STATE, 6)))
     assert act.state == NodeState.SAFE_STATE
 
 

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import pytest
 
-from rig.can_messages import NodeState
 from rig.config import RigConfig, load_config
 from rig.runfile import open_run
 from rig.tui import run_screen
@@ -27,6 +26,7 @@ from rig.tui.confirm import ArmScreen
 from rig.tui.fit_job import FitJob, summarize
 from rig.tui.run_screen import RunScreen
 from rig.tui.trace_screen import TraceScreen
+from rig.wire.can_messages import NodeState
 from tests.test_run_limits import profile_file
 from tests.test_tui_support import FIT_DOC, BusWatch, bench_sim, stand_in_fit, write_run
 

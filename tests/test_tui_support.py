@@ -18,13 +18,13 @@ from pathlib import Path
 import can
 import numpy as np
 
-from rig import can_messages as cm
-from rig.can_messages import Command, CommandKind, Feedback, NodeState
 from rig.config import RigConfig, load_config
 from rig.errors import DataError
 from rig.runfile import RunInfo, RunWriter, list_runs
-from rig.tui.fit_job import Command as FitCommand
+from rig.tui.fit_job import FitArgvBuilder
 from rig.tui.sim_host import SimHost
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import CommandKind, Feedback, NodeState, RigCommand
 
 #: the shape of `analysis fit --json` (values from a real fit of runs A, B, C)
 _ERR = {"20261123T141108_A": (21.68469477914084, 15.907012235883517),
@@ -68,7 +68,7 @@ def bench_sim() -> Iterator[RigConfig]:
         sim.stop()
 
 
-def stand_in_fit(tmp_path: Path) -> FitCommand:
+def stand_in_fit(tmp_path: Path) -> FitArgvBuilder:
     """An `analysis fit` stand-in: progress lines on stderr, FIT_DOC as JSON, an index.html."""
     script = tmp_path / "stand_in_fit.py"
     script.write_text(textwrap.dedent(f"""
@@ -114,7 +114,7 @@ class BusWatch:
         kwargs = config.can.bus_kwargs()
         kwargs.pop("bitrate", None)  # a socketcand client does not set it
         self.bus = can.Bus(**kwargs)
-        self.seen: list[tuple[float, Command | Feedback]] = []
+        self.seen: list[tuple[float, RigCommand | Feedback]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -128,11 +128,11 @@ class BusWatch:
                 msg = cm.from_can(frame)
             except DataError:
                 continue
-            if isinstance(msg, (Command, Feedback)):
+            if isinstance(msg, (RigCommand, Feedback)):
                 self.seen.append((time.monotonic(), msg))
 
     def safe_state_sent(self, after: float) -> bool:
-        return any(isinstance(m, Command) and m.command == CommandKind.SAFE_STATE
+        return any(isinstance(m, RigCommand) and m.command == CommandKind.SAFE_STATE
                    for t, m in self.seen if t >= after)
 
     def states(self, after: float) -> dict[int, NodeState]:

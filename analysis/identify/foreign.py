@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.convert.failed_open import release
 from rig.errors import DataError
-from rig.failed_open import release
 from rig.units import UnitError, factor, to_si
 
 MDF_SUFFIXES = (".mf4", ".mdf")
@@ -101,7 +101,7 @@ def _mdf_series(path: Path, channels: tuple[str, str] | None
     try:
         mdf = MDF(path)
     except Exception as e:  # noqa: BLE001 - asammdf raises MdfException, struct, OS errors
-        release(e)  # asammdf's half-built reader (rig.failed_open)
+        release(e)  # asammdf's half-built reader (rig.convert.failed_open)
         raise DataError(f"{path}: not a readable MDF file: {type(e).__name__}: {e}") from None
     try:
         have = set(mdf.channels_db)

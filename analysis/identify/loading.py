@@ -30,7 +30,7 @@ left its x at 2.3× the noise.
 
 Each sensor channel's times are first put back on one straight line of its
 sample index: the rig places a sample on its clock fit as that stands when the
-sample is written (rig.recorder, half a second after arrival) and only the last
+sample is written (rig.run.recorder, half a second after arrival) and only the last
 half second on the final fit of the whole run, so a channel's times step by up to
 0.1 ms wherever the fit moved (measured on a campaign: 0.05–0.11 ms peak to peak
 on the table channel). A sensor samples on its own steady clock, so the final

@@ -24,10 +24,10 @@ from rig.config import RigConfig
 from rig.runfile import list_runs
 from rig.tui.choice import ProfileChoice, choose
 from rig.tui.confirm import ArmScreen
-from rig.tui.fit_job import Command, FitJob, analysis_command
-from rig.tui.live import LiveJob
+from rig.tui.fit_job import FitArgvBuilder, FitJob, analysis_command
 from rig.tui.priority import Spawner, lower_this_thread
 from rig.tui.results_screen import ResultsScreen
+from rig.tui.run_job import LiveJob
 from rig.tui.run_screen import RunScreen
 from rig.tui.runs_screen import RunsScreen
 from rig.tui.session import BenchSession
@@ -68,7 +68,7 @@ class RigApp(App[None]):
 
     def __init__(self, config: RigConfig, out_dir: Path, *, profile: str = "A",
                  session: BenchSession | None = None, sim_args: tuple[str, ...] = (),
-                 fit_command: Command = analysis_command, display_nice: int = 0) -> None:
+                 fit_command: FitArgvBuilder = analysis_command, display_nice: int = 0) -> None:
         """display_nice: lower the UI thread's priority by this much while the app runs
         (rig.tui.priority; `rig tui` uses DISPLAY_NICE) so a loaded machine starves the
         display, never the run."""

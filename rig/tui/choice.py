@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import can_messages as cm
 from rig.config import RigConfig
 from rig.errors import LimitError, RigError
 from rig.limits import QUANTITIES, Margins, check_all
 from rig.paths import data_file
 from rig.profile import BUILTIN, Profile, load_profile
 from rig.units import from_si, us_unit
+from rig.wire.bus_load import check_bus_load
 
 PREVIEW_POINTS = 200  # samples of u(t) in the preview plot
 
@@ -62,7 +62,7 @@ def choose(config: RigConfig, spec: str) -> ProfileChoice:
         return ProfileChoice(spec, None, "", None, error=str(exc).splitlines()[0])
     try:
         margins = check_all(config, profile)
-        cm.check_bus_load(config)
+        check_bus_load(config)
     except LimitError as exc:
         return ProfileChoice(spec, profile, text, getattr(exc, "margins", None), refused=str(exc))
     return ProfileChoice(spec, profile, text, margins)

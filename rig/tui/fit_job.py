@@ -23,7 +23,7 @@ from rig.units import from_si, us_unit
 MASS_LB = 6000.0  # the report's isolated mass
 
 #: (files, json path, report dir) -> argv; tests swap in a stand-in fit
-Command = Callable[[Sequence[Path], Path, Path], list[str]]
+FitArgvBuilder = Callable[[Sequence[Path], Path, Path], list[str]]
 
 
 def analysis_command(files: Sequence[Path], json_path: Path, report: Path) -> list[str]:
@@ -114,7 +114,7 @@ class FitJob:
 
     files: tuple[Path, ...]
     report: Path
-    command: Command = analysis_command
+    command: FitArgvBuilder = analysis_command
     lines: deque[str] = field(default_factory=lambda: deque(maxlen=200))
     summary: FitSummary | None = None
     error: str = ""

@@ -28,8 +28,8 @@ from pathlib import Path
 from types import MappingProxyType
 
 from rig.config import RigConfig
-from rig.live import LiveStatus, RunControl
 from rig.profile import Profile
+from rig.run.status import LiveStatus, RunControl
 from rig.tui.child import spawn_child
 
 ESTOP = "estop"
@@ -109,7 +109,7 @@ def main(fd: int) -> None:
 
 def _child(config: RigConfig, profile: Profile, text: str, out_dir: str,
            conn: Connection) -> None:
-    from rig.runner import run_profile  # only the child needs the runner
+    from rig.run.runner import run_profile  # only the child needs the runner
 
     config = from_wire(config)
     control = RunControl()

@@ -17,8 +17,8 @@ from textual.containers import Horizontal
 from textual.screen import Screen
 from textual.widgets import Button, Footer, Header
 
-from rig.live import LiveStatus
-from rig.tui.live import LiveJob
+from rig.run.status import LiveStatus
+from rig.tui.run_job import LiveJob
 from rig.tui.run_view import BusMeter, actuator_table, health_table, state_line
 from rig.tui.widgets import LiveText, TracePlot
 

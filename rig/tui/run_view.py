@@ -11,10 +11,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from rich.text import Text
 
-from rig import can_messages as cm
 from rig.config import RigConfig
-from rig.live import LiveStatus
+from rig.run.status import LiveStatus
 from rig.tui.widgets import length, length_unit
+from rig.wire import can_messages as cm
+from rig.wire.bus_load import bus_load
 
 STATUS_STYLE = {"RUNNING": "green", "ENABLED": "cyan", "SAFE_STATE": "yellow",
                 "FAULT": "bold red", "?": "dim"}
@@ -43,7 +44,7 @@ class BusMeter:
             (t0, n0), (t1, n1) = seen[0], seen[-1]
             rx = (n1 - n0) / (t1 - t0)
             tx = len(cm.ACTUATORS) * self.config.rates.setpoint if status.phase == "running" else 0
-            budget = cm.bus_load(self.config)
+            budget = bus_load(self.config)
             bits = budget.bits_per_s("worst") / budget.frames_per_s
             self.load = (rx + tx) * bits / self.config.can.bitrate
         return self.load

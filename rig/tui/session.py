@@ -12,8 +12,8 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from rig import can_messages as cm
 from rig.config import RigConfig
+from rig.wire.bus_load import bus_load
 
 
 class BenchSession:
@@ -46,7 +46,7 @@ class BenchSession:
             where = ":".join(str(c.can.extra[k]) for k in ("host", "port") if k in c.can.extra)
             bus = f"{c.can.interface} {c.can.channel}" + (f" @{where}" if where else "")
             port = c.serial.path
-        load = cm.bus_load(c)
+        load = bus_load(c)
         return [
             ("config", Path(c.source).name if c.source != "<memory>" else "in memory"),
             ("backend", backend),

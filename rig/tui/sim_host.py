@@ -1,11 +1,11 @@
 """`sim serve` for a TUI session, started from a small process in a session of its own.
 
-Why not `rig.simproc.SimProcess` straight from the TUI: Linux groups processes
+Why not `rig.run.sim_process.SimProcess` straight from the TUI: Linux groups processes
 by session for CPU fairness (autogroup, on here), so a `sim serve` started by
 the TUI shares one group's CPU share with the display. Measured on the two
 shared cores: at a 12 Hz display, run A aborted (actuators' WATCHDOG_HOLD) in
 most tries; with the same sim in its own session, or the display at 2 Hz, every
-run passed. `SimProcess` cannot be asked for a new session (rig/simproc.py is
+run passed. `SimProcess` cannot be asked for a new session (rig/run/sim_process.py is
 not the TUI's), so this host process, in its own session, owns one: the sim
 gets the host's (idle) group. The host stops the sim on "stop" or when the
 TUI's end of the pipe closes (the TUI gone); the sim stops if the host dies.
@@ -64,7 +64,7 @@ class SimHost:
 
 
 def main(fd: int) -> None:
-    from rig.simproc import SimProcess
+    from rig.run.sim_process import SimProcess
 
     conn = Connection(fd)
     wire, sim_args = conn.recv()

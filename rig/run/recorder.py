@@ -5,16 +5,16 @@ Time base: the run file's host time (s since the writer started). CAN frames
 carry the bus's Unix timestamp, mapped by the run's start_unix; serial frames
 carry the arrival time on the monotonic clock. Sensor samples are placed at
 their *sampling* instant: each sensor's device timestamps are mapped onto host
-time by a `ClockFit` (rig.clock_fit; docs/time_alignment.md). A sample is
+time by a `ClockFit` (rig.run.clock_fit; docs/time_alignment.md). A sample is
 written `HOLD_S` after it arrived, on the fit as it stands then, so every
 sample but the first half second's is placed by a fit that has seen it and its
 neighbours; `finish()` refits and writes the rest. Live readers lag by HOLD_S.
 
 `rig import` feeds a logged bus through the same path; a bench DBC with a MassSensor
-message (rig.can_messages) brings the mass sensor over CAN, handled as the table's.
+message (rig.wire.can_messages) brings the mass sensor over CAN, handled as the table's.
 
 Losses, never interpolated: numbered frames (sensor device timestamps, feedback
-servo ticks, heartbeat counters) are classified on arrival (rig.interlocks.Sequences):
+servo ticks, heartbeat counters) are classified on arrival (rig.run.interlocks.Sequences):
 missing ones are counted as `lost`, repeats as `duplicates` (not written twice),
 frames overtaken by a later one as `reordered`. Sensor channels are written in
 device-time order from the held-back samples, so a reordered sample still lands
@@ -22,7 +22,7 @@ in its place, and a hole in device time is marked in /gaps with its size. CAN
 `crc_errors` counts error frames and frames of the rig's DBC ids that do not
 decode (wrong length, an index that contradicts the id, an unknown state).
 
-Watchdogs (`check`): the rules of rig.interlocks (liveness of each sensor and
+Watchdogs (`check`): the rules of rig.run.interlocks (liveness of each sensor and
 actuator, following error by servo tick, START taken by every actuator) plus an
 actuator reporting a fault and a CAN bus-off error frame; the first broken rule
 raises `RunAborted` naming it.
@@ -37,16 +37,16 @@ import can
 import numpy as np
 from cantools.database.can import Database
 
-from rig import can_messages as cm
-from rig.can_messages import Fault, Feedback, Heartbeat, MassSample, NodeState, TableSample
-from rig.clock_fit import ClockFit
 from rig.config import RigConfig
 from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan
-from rig.interlocks import FOLLOWING_LIMIT_M, LIVENESS_S, Interlocks, Sequences, Step
-from rig.live import ActuatorLive, LiveStatus, Trace
+from rig.run.clock_fit import ClockFit
+from rig.run.interlocks import FOLLOWING_LIMIT_M, LIVENESS_S, Interlocks, Sequences, Step
+from rig.run.status import ActuatorLive, LiveStatus, Trace
 from rig.runfile import RunWriter
-from rig.serial_frame import DecoderStats, Frame, encode_frame
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import Fault, Feedback, Heartbeat, MassSample, NodeState, TableSample
+from rig.wire.serial_frame import DecoderStats, Frame, encode_frame
 
 __all__ = ["FOLLOWING_LIMIT_M", "HOLD_S", "LIVENESS_S", "Recorder", "RunAborted"]
 
@@ -65,7 +65,7 @@ class Recorder:
 
     def __init__(self, writer: RunWriter, config: RigConfig, start_unix: float,
                  t0_mono: float, db: Database | None = None) -> None:
-        """`db`: a bench DBC (rig.can_messages.bench_database) to decode with instead of the
+        """`db`: a bench DBC (rig.wire.can_messages.bench_database) to decode with instead of the
         rig's; one with a MassSensor message brings mass_x over CAN (a logged bench bus)."""
         self.w, self.config, self._db = writer, config, db
         self._start_unix, self._t0 = start_unix, t0_mono
@@ -85,7 +85,7 @@ class Recorder:
         self._fb_per_frame = config.rates.setpoint / config.rates.feedback
         self._fb_state: dict[int, NodeState] = {}
         self._ours = cm.known_ids(db)
-        # for displays only (rig.live): recent samples on arrival time, last feedback
+        # for displays only (rig.run.status): recent samples on arrival time, last feedback
         self.traces = {"table_u": Trace(), "mass_x": Trace()}
         self._last_feedback: dict[int, tuple[float, int, int, float]] = {}
         self._next_check = -math.inf
@@ -153,7 +153,7 @@ class Recorder:
         return not step.duplicate
 
     def _sensor(self, channel: str, key: int, t: float, m: TableSample | MassSample) -> None:
-        """A sensor sample on CAN: the table's, or a bench's mass sensor (rig.can_messages)."""
+        """A sensor sample on CAN: the table's, or a bench's mass sensor (rig.wire.can_messages)."""
         step = self._seq.step(key, m.timestamp_us, _US, 1e6 * self._period[channel])
         if not self._count(step):
             return
@@ -276,7 +276,7 @@ class Recorder:
             self.w.sample(f"actuator_setpoint_{actuator}", t, position)
 
     def live(self, phase: str, now_run: float, frames_per_s: float) -> LiveStatus:
-        """A snapshot for displays (rig.live); times from START (s), which may be negative."""
+        """A snapshot for displays (rig.run.status); times from START (s), which may be negative."""
         start = self.start_run_t if self.start_run_t is not None else now_run
         duration = float(self.plan.t[-1]) if self.plan is not None else 0.0
         actuators = []

@@ -2,8 +2,8 @@
 
 The bench's own tools log the bus too: Vector (BLF, ASC), PEAK (TRC), python-can
 (CSV, canutils .log) and ASAM MDF 4 bus logging (.mf4). python-can's `LogReader`
-reads each, and every frame goes through `rig.recorder.Recorder`, as a frame
-received in `rig run` does: kept raw in /raw/can, decoded by rig.can_messages,
+reads each, and every frame goes through `rig.run.recorder.Recorder`, as a frame
+received in `rig run` does: kept raw in /raw/can, decoded by rig.wire.can_messages,
 counted for loss, the sensors' device clocks fitted onto the log's time stamps and
 the samples placed on that fit, holes marked in /gaps. So a run file from
 `rig import` reads like one from `rig run`; /meta backend is "import" and every
@@ -11,7 +11,7 @@ channel's `source` begins `import:LOG`. The ActuatorSetpoint frames are placed a
 `rig run` places the setpoints it sends: at START + (index − start sample) / rate.
 
 The DBC given is checked to describe the rig's messages exactly as
-data/isolator_rig.dbc does (rig.can_messages.bench_database). The rig's own mass
+data/isolator_rig.dbc does (rig.wire.can_messages.bench_database). The rig's own mass
 sensor is on the serial port, which no CAN log holds: only a bench whose DBC adds a
 `MassSensor` message (a mass sensor on CAN) gives mass_x. An import that cannot
 make both table_u and mass_x is refused, naming the channels it found, and leaves
@@ -29,14 +29,14 @@ from pathlib import Path
 import can
 from cantools.database.can import Database
 
-from rig import can_messages as cm
-from rig.can_messages import Command, CommandKind, Setpoint
 from rig.config import RigConfig
+from rig.convert.failed_open import release
 from rig.errors import DataError
-from rig.failed_open import release
 from rig.paths import data_file
-from rig.recorder import Recorder
+from rig.run.recorder import Recorder
 from rig.runfile import RunInfo, RunWriter, standard_channels
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import CommandKind, RigCommand, Setpoint
 
 #: what python-can's LogReader reads (each also gzip-compressed: .blf.gz, ...)
 FORMATS = {".blf": "Vector BLF", ".asc": "Vector ASC", ".trc": "PEAK TRC",
@@ -114,7 +114,7 @@ def _write(log: Path, out: Path, config: RigConfig, db: Database, first: can.Mes
                     seen.decoded += m is not None
                     if isinstance(m, Setpoint):
                         setpoints.setpoint(m)
-                    elif isinstance(m, Command):
+                    elif isinstance(m, RigCommand):
                         setpoints.command(msg.timestamp - start_unix, m)
                 msg = _next(frames, log, kind)
             rec.finish()
@@ -210,7 +210,7 @@ class _Setpoints:
         self.index: dict[int, int] = {}  # actuator → last full sample index
         self.held: list[tuple[int, int, float]] = []  # before START: when is not known yet
 
-    def command(self, t: float, m: Command) -> None:
+    def command(self, t: float, m: RigCommand) -> None:
         if m.command == CommandKind.START and self.start is None:
             self.start = (t, m.start_sample)
             for item in self.held:

@@ -13,11 +13,23 @@ import numpy as np
 from h5py import h5s, h5t
 
 from rig.errors import DataError
-from rig.runfile_io import one_line
-from rig.runfile_schema import (
-    CAN_DATA_BYTES, CAN_DTYPE, COUNTER_DTYPE, COUNTERS_PATH, FIXED_DATASETS, GAP_DTYPE, GROUPS,
-    RUNNING, SCHEMA_VERSION, SERIAL_DTYPE, SERIAL_FRAME_BYTES, TIME_BASE, ChannelSpec,
-    DatasetSpec, RunInfo,
+from rig.runfile.io import one_line
+from rig.runfile.schema import (
+    CAN_DATA_BYTES,
+    CAN_DTYPE,
+    COUNTER_DTYPE,
+    COUNTERS_PATH,
+    FIXED_DATASETS,
+    GAP_DTYPE,
+    GROUPS,
+    RUNNING,
+    SCHEMA_VERSION,
+    SERIAL_DTYPE,
+    SERIAL_FRAME_BYTES,
+    TIME_BASE,
+    ChannelSpec,
+    DatasetSpec,
+    RunInfo,
 )
 
 Rows = list[tuple]

@@ -1,6 +1,6 @@
-"""The HDF5 run file: one file per run, owned by this module and its rig.runfile_* helpers.
+"""The HDF5 run file: one file per run, owned by this package (its public names are here).
 
-Layout (schema version 1; tables in rig.runfile_schema, drawn out in docs/runfile.md)::
+Layout (schema version 1; tables in rig.runfile.schema, drawn out in docs/runfile.md)::
 
     /                 exit_status ("running" | success | abort | fail), reason,
                       complete (bool), samples_json {table: rows}
@@ -31,20 +31,38 @@ Reading: `open_run(path)` -> RunFile (a snapshot, live or not); `LiveRun(path).p
 
 from __future__ import annotations
 
-from rig.runfile_io import check_output_dir
-from rig.runfile_live import LiveRun
-from rig.runfile_probe import check_readable
-from rig.runfile_reader import (
-    CanFrames, Channel, Gap, RunFile, RunStatus, RunSummary, SerialFrames, list_runs, open_run,
+from rig.runfile.follow import LiveRun
+from rig.runfile.io import check_output_dir
+from rig.runfile.probe import check_readable
+from rig.runfile.reader import (
+    CanFrames,
+    Channel,
+    Gap,
+    RunFile,
+    RunStatus,
+    RunSummary,
+    SerialFrames,
+    list_runs,
+    open_run,
     read_status,
 )
-from rig.runfile_recover import recover
-from rig.runfile_schema import (
-    CAN_DTYPE, CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, CAN_FLAG_REMOTE, COUNTER_KINDS, FIXED_DATASETS,
-    SCHEMA_VERSION, SERIAL_DTYPE, SERIAL_FRAME_BYTES, ChannelSpec, DatasetSpec, RunInfo,
+from rig.runfile.recover import recover
+from rig.runfile.schema import (
+    CAN_DTYPE,
+    CAN_FLAG_ERROR,
+    CAN_FLAG_EXTENDED,
+    CAN_FLAG_REMOTE,
+    COUNTER_KINDS,
+    FIXED_DATASETS,
+    SCHEMA_VERSION,
+    SERIAL_DTYPE,
+    SERIAL_FRAME_BYTES,
+    ChannelSpec,
+    DatasetSpec,
+    RunInfo,
     standard_channels,
 )
-from rig.runfile_writer import RunWriter
+from rig.runfile.writer import RunWriter
 
 __all__ = [
     "CAN_DTYPE", "CAN_FLAG_ERROR", "CAN_FLAG_EXTENDED", "CAN_FLAG_REMOTE", "COUNTER_KINDS",

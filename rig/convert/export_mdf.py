@@ -18,7 +18,7 @@ from pathlib import Path
 
 from rig.errors import DataError
 from rig.runfile import check_readable, open_run
-from rig.runfile_reader import RunFile
+from rig.runfile.reader import RunFile
 
 MDF_VERSION = "4.10"
 

@@ -1,8 +1,8 @@
 """The rig's CAN messages, typed: dataclasses in, dataclasses out, through data/isolator_rig.dbc.
 
 The DBC is the one description of the wire (cantools loads it once); this module
-maps its signals to dataclasses and back, and budgets the bus load. Classical CAN,
-11-bit ids, 8 data bytes a frame. Ids by priority (lower wins arbitration):
+maps its signals to dataclasses and back (their load on the bus: rig.wire.bus_load).
+Classical CAN, 11-bit ids, 8 data bytes a frame. Ids by priority (lower wins arbitration):
 
     0x010        RigCommand          rig → all        enable, start at sample, stop, safe state
     0x101–0x106  ActuatorSetpoint<i> rig → actuator i  position from mid-stroke, 1 µm
@@ -29,8 +29,7 @@ import can
 import cantools
 from cantools.database.can import Database, Message
 
-from rig.config import RigConfig
-from rig.errors import DataError, LimitError
+from rig.errors import DataError
 from rig.paths import data_file
 
 COMMAND_ID = 0x010
@@ -134,7 +133,7 @@ class Heartbeat:
 
 
 @dataclass(frozen=True)
-class Command:
+class RigCommand:
     """A rig command to every node; `counter` lets a node drop a repeated frame."""
 
     command: CommandKind
@@ -142,7 +141,7 @@ class Command:
     start_sample: int = 0  # START: the full setpoint sample index to begin at
 
 
-RigMessage = Union[Setpoint, Feedback, TableSample, MassSample, Heartbeat, Command]
+RigMessage = Union[Setpoint, Feedback, TableSample, MassSample, Heartbeat, RigCommand]
 
 
 @functools.cache
@@ -282,7 +281,7 @@ def _signals(msg: RigMessage, db: Database) -> tuple[int, dict[str, float | int]
         return HEARTBEAT_BASE + msg.node, {
             "NodeId": msg.node, "Counter": msg.counter % (1 << COUNTER_BITS),
             "State": int(msg.state)}
-    if isinstance(msg, Command):
+    if isinstance(msg, RigCommand):
         return COMMAND_ID, {"Command": int(msg.command), "StartSample": msg.start_sample,
                             "Counter": msg.counter % (1 << COUNTER_BITS)}
     raise TypeError(f"not a rig CAN message: {msg!r}")
@@ -310,7 +309,7 @@ def _build(name: str, frame_id: int, s: dict) -> RigMessage:
             raise ValueError(f"NodeId {s['NodeId']} on the id of node {frame_id - HEARTBEAT_BASE}")
         return Heartbeat(int(s["NodeId"]), int(s["Counter"]), NodeState(s["State"]))
     if name == "RigCommand":
-        return Command(CommandKind(s["Command"]), int(s["Counter"]), int(s["StartSample"]))
+        return RigCommand(CommandKind(s["Command"]), int(s["Counter"]), int(s["StartSample"]))
     raise ValueError("not one of the rig's messages")
 
 
@@ -318,107 +317,3 @@ def _metres(value: float) -> float:
     # raw × 1e-6 lands a few ulp off the decimal value; rounding far below the 1 µm
     # resolution makes −50000 µm decode as −0.05 m exactly, as it was sent
     return round(float(value), 9)
-
-
-# --- bus load ---------------------------------------------------------------------------
-
-STUFFED_OVERHEAD_BITS = 34  # SOF, 11-bit id, RTR, IDE, r0, DLC, 15-bit CRC: bit-stuffed
-FIXED_OVERHEAD_BITS = 13  # CRC and ACK delimiters, ACK slot, 7-bit EOF, 3-bit intermission
-
-
-def frame_bits(data_bytes: int = 8) -> tuple[int, int]:
-    """(best, worst) bits a classical 11-bit data frame takes on the bus, intermission included.
-
-    Worst case: one stuff bit after every 4 of the stuffed part but the first, so
-    8 data bytes take 111 bits best, 135 worst.
-    """
-    stuffed = STUFFED_OVERHEAD_BITS + 8 * data_bytes
-    best = stuffed + FIXED_OVERHEAD_BITS
-    return best, best + (stuffed - 1) // 4
-
-
-@dataclass(frozen=True)
-class Stream:
-    """A cyclic message: `senders` frames of `data_bytes` each, `rate` (Hz) times a second."""
-
-    name: str
-    senders: int
-    rate: float
-    data_bytes: int
-
-    @property
-    def frames_per_s(self) -> float:
-        return self.senders * self.rate
-
-
-@dataclass(frozen=True)
-class BusLoad:
-    """The cyclic traffic of a configuration against its bitrate (bit/s) and budget (fraction)."""
-
-    bitrate: int
-    budget: float
-    streams: tuple[Stream, ...]
-
-    @property
-    def frames_per_s(self) -> float:
-        return sum(s.frames_per_s for s in self.streams)
-
-    def bits_per_s(self, case: str = "worst") -> float:
-        """Bus bits per second with `case` 'best' or 'worst' bit stuffing."""
-        pick = {"best": 0, "worst": 1}[case]
-        return sum(s.frames_per_s * frame_bits(s.data_bytes)[pick] for s in self.streams)
-
-    @property
-    def load_best(self) -> float:
-        return self.bits_per_s("best") / self.bitrate
-
-    @property
-    def load_worst(self) -> float:
-        return self.bits_per_s("worst") / self.bitrate
-
-    @property
-    def fits(self) -> bool:
-        return self.load_worst <= self.budget
-
-    def format(self) -> str:
-        """A table of the streams, frames/s and the load in both cases."""
-        lines = [f"CAN bus load at {self.bitrate:,} bit/s (budget {self.budget:.0%} worst case)"]
-        for s in self.streams:
-            lines.append(f"  {s.name:<13} {s.senders} x {s.rate:>6g} Hz {s.frames_per_s:>8,.0f} "
-                         f"frames/s")
-        lines.append(f"  {'total':<25} {self.frames_per_s:>8,.0f} frames/s")
-        for case, load in (("best", self.load_best), ("worst", self.load_worst)):
-            bits = {frame_bits(s.data_bytes)[case == "worst"] for s in self.streams}
-            per = "/".join(str(b) for b in sorted(bits))
-            lines.append(f"  {case:<5} case, {per}-bit frames: {self.bits_per_s(case):>10,.0f} "
-                         f"bit/s = {load:.1%}")
-        lines.append(f"  {'fits' if self.fits else 'OVER'} the {self.budget:.0%} budget")
-        return "\n".join(lines)
-
-
-def bus_load(config: RigConfig) -> BusLoad:
-    """The cyclic frames of `config` (commands are events and ride in the budget's headroom)."""
-    db = database()
-
-    def size(name: str) -> int:
-        return db.get_message_by_name(name).length
-
-    rates = config.rates
-    streams = (
-        Stream("setpoints", len(ACTUATORS), rates.setpoint, size("ActuatorSetpoint1")),
-        Stream("feedback", len(ACTUATORS), rates.feedback, size("ActuatorFeedback1")),
-        Stream("table sensor", 1, config.table_sensor.sample_rate, size("TableSensor")),
-        Stream("heartbeats", len(NODES), rates.heartbeat, size("HeartbeatRIG")),
-    )
-    return BusLoad(config.can.bitrate, config.can.load_budget, streams)
-
-
-def check_bus_load(config: RigConfig) -> BusLoad:
-    """`bus_load(config)`, or LimitError if the worst case is over the budget."""
-    load = bus_load(config)
-    if not load.fits:
-        raise LimitError(
-            f"CAN bus load {load.frames_per_s:,.0f} frames/s is {load.load_worst:.1%} of "
-            f"{load.bitrate:,} bit/s with worst-case stuffing ({load.load_best:.1%} best case), "
-            f"over the {load.budget:.0%} budget; lower [rates] or raise can.load_budget")
-    return load

@@ -18,11 +18,11 @@ import socket
 
 import can
 
-from rig import can_messages as cm
-from rig.acquire import open_bus
-from rig.commands import safe_state
 from rig.config import RigConfig
 from rig.errors import RigError
+from rig.run.receive import open_bus
+from rig.run.schedule import safe_state
+from rig.wire import can_messages as cm
 
 log = logging.getLogger(__name__)
 

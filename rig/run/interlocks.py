@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig import can_messages as cm
-from rig.can_messages import Feedback, NodeState
 from rig.geometry import ActuatorPlan
+from rig.wire import can_messages as cm
+from rig.wire.can_messages import Feedback, NodeState
 
 LIVENESS_S = 0.25  # s a sensor may stay silent during a run (250 samples at 1 kHz)
 # s an actuator's feedback may stay silent: 30 frames at 100 Hz. Longer than LIVENESS_S

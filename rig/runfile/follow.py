@@ -19,9 +19,9 @@ import h5py
 import numpy as np
 
 from rig.errors import DataError
-from rig.runfile_io import one_line, open_for_read, writer_alive
-from rig.runfile_reader import check_layout
-from rig.runfile_schema import ChannelSpec
+from rig.runfile.io import one_line, open_for_read, writer_alive
+from rig.runfile.reader import check_layout
+from rig.runfile.schema import ChannelSpec
 
 
 class LiveRun:

@@ -23,11 +23,11 @@ from pathlib import Path
 import h5py
 
 from rig.errors import DataError
-from rig.runfile_io import one_line, reserve_path, writer_alive
-from rig.runfile_reader import check_layout, read_status
-from rig.runfile_schema import CRASHED, RUNNING
-from rig.runfile_superblock import clear_status_flags, status_flags
-from rig.runfile_tables import utc_now
+from rig.runfile.io import one_line, reserve_path, writer_alive
+from rig.runfile.reader import check_layout, read_status
+from rig.runfile.schema import CRASHED, RUNNING
+from rig.runfile.superblock import clear_status_flags, status_flags
+from rig.runfile.tables import utc_now
 
 
 def recover(path: str | os.PathLike[str], dest: str | os.PathLike[str] | None = None) -> Path:

@@ -4,10 +4,10 @@ Order (design.md §4.6–7):
 1. `check_all`, the bus-load budget and the output directory (missing, not
    writable, nearly full), before anything is opened: a refused run never
    reaches the bus.
-2. With `backend = "sim"` start `sim serve` (rig.simproc) unless given one.
+2. With `backend = "sim"` start `sim serve` (rig.run.sim_process) unless given one.
 3. Open the bus, the serial port and the run file; start the receivers; log a
    short baseline; `confirm()` arms (the CLI asks, or --yes).
-4. Send the timed messages of rig.commands at their due times, keeping the
+4. Send the timed messages of rig.run.schedule at their due times, keeping the
    queue of received frames drained into the run file; watch the watchdogs.
    The schedule's origin is the instant START went out: the actuators play
    sample i at START + i / rate, and so does the run file's setpoint channel.
@@ -37,19 +37,29 @@ from pathlib import Path
 
 import can
 
-from rig import can_messages as cm
-from rig.acquire import Receivers, open_bus, open_port
-from rig.can_messages import Command, Setpoint
-from rig.commands import LEAD_SAMPLES, Timed, run_messages
 from rig.config import RigConfig, config_to_dict
 from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan, actuator_plan
 from rig.limits import check_plan
-from rig.live import LiveStatus, Publisher, RunControl
 from rig.profile import Profile
-from rig.recorder import Recorder, RunAborted
+from rig.run.receive import (
+    CanReceived,
+    Idle,
+    Received,
+    ReceiverFailed,
+    Receivers,
+    SerialReceived,
+    open_bus,
+    open_port,
+)
+from rig.run.recorder import Recorder, RunAborted
+from rig.run.safe_state import COMMAND_REPEATS, one_line, send_safe_state
+from rig.run.schedule import LEAD_SAMPLES, Timed, run_messages
+from rig.run.status import LiveStatus, Publisher, RunControl
 from rig.runfile import RunInfo, RunWriter, check_output_dir, standard_channels
-from rig.safe_state import COMMAND_REPEATS, one_line, send_safe_state
+from rig.wire import can_messages as cm
+from rig.wire.bus_load import check_bus_load
+from rig.wire.can_messages import RigCommand, Setpoint
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +69,7 @@ PUMP_BATCH = 64  # received items handled between two looks at the setpoint sche
 
 
 class BusLost(RunAborted):
-    """The run's CAN connection failed: SAFE_STATE needs a fresh one (rig.safe_state)."""
+    """The run's CAN connection failed: SAFE_STATE needs a fresh one (rig.run.safe_state)."""
 
 
 class NotArmed(RigError):
@@ -96,15 +106,15 @@ def run_profile(config: RigConfig, profile: Profile, profile_text: str, out_dir:
 
     start_sim: with backend "sim", start `sim serve` for this run; False when the
     caller already runs one (a campaign) and `config` points at it.
-    control: the e-stop flag and live listeners (rig.live); the stop is honoured from
+    control: the e-stop flag and live listeners (rig.run.status); the stop is honoured from
     the moment the run file opens, within one pass of the loop (a few ms).
     """
     plan = actuator_plan(config, profile)
     check_plan(config, plan)  # LimitError: nothing opened, nothing sent
-    cm.check_bus_load(config)
+    check_bus_load(config)
     check_output_dir(Path(out_dir))  # DataError: missing, not writable or full; nothing started
     if config.backend == "sim" and start_sim:
-        from rig.simproc import SimProcess  # starts a process: only when asked for
+        from rig.run.sim_process import SimProcess  # starts a process: only when asked for
         with SimProcess(config, extra_args=sim_args) as sim:
             progress(f"sim serve running (pid {sim.pid})")
             return _run(sim.config, profile, profile_text, plan, out_dir, confirm, progress,
@@ -260,7 +270,7 @@ def _send(bus: can.BusABC, timed: Timed) -> None:
     """Put one message on the bus (a command COMMAND_REPEATS times); a dead bus aborts."""
     frame = cm.to_can(timed.message)
     try:
-        for _ in range(COMMAND_REPEATS if isinstance(timed.message, Command) else 1):
+        for _ in range(COMMAND_REPEATS if isinstance(timed.message, RigCommand) else 1):
             bus.send(frame)
     except (can.CanError, OSError) as exc:
         raise BusLost(f"CAN bus lost: cannot send: {one_line(exc)}") from None
@@ -294,19 +304,20 @@ def _pump(receivers: Receivers, rec: Recorder, writer: RunWriter, timeout: float
     writer.poll()
 
 
-def _handle(rec: Recorder, item: tuple) -> None:
-    kind = item[0]
-    if kind == "can":
-        rec.can_frame(item[1])
-    elif kind == "serial":
-        rec.serial_frames(item[1], item[2], item[3])
-    elif kind == "idle":
-        rec.idle(item[1], item[2])
-    elif item[1] == "can":  # a receiver died with its bus or port: the rig is blind
-        raise BusLost(f"CAN bus lost: {type(item[2]).__name__}: {one_line(item[2])}")
-    else:
-        raise RunAborted(f"serial port (mass sensor) lost: {type(item[2]).__name__}: "
-                         f"{one_line(item[2])}")
+def _handle(rec: Recorder, item: Received) -> None:
+    match item:
+        case CanReceived(frame):
+            rec.can_frame(frame)
+        case SerialReceived(host_s, frames, stats):
+            rec.serial_frames(host_s, frames, stats)
+        case Idle(source, since):
+            rec.idle(source, since)
+        # a receiver died with its bus or port: the rig is blind
+        case ReceiverFailed("can", error):
+            raise BusLost(f"CAN bus lost: {type(error).__name__}: {one_line(error)}")
+        case ReceiverFailed(_, error):
+            raise RunAborted(f"serial port (mass sensor) lost: {type(error).__name__}: "
+                             f"{one_line(error)}")
 
 
 def _pump_until(receivers: Receivers, rec: Recorder, writer: RunWriter, until: float,
@@ -322,7 +333,7 @@ def _drain(receivers: Receivers, rec: Recorder) -> None:
     """What arrived before the receivers stopped still goes in the file."""
     while not receivers.queue.empty():
         item = receivers.queue.get_nowait()
-        if item[0] != "error":
+        if not isinstance(item, ReceiverFailed):
             _handle(rec, item)
 
 

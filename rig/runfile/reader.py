@@ -19,11 +19,21 @@ import h5py
 import numpy as np
 
 from rig.errors import DataError
-from rig.runfile_io import one_line, open_for_read, writer_alive
-from rig.runfile_probe import check_readable
-from rig.runfile_schema import (
-    CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, CAN_FLAG_REMOTE, COUNTER_DTYPE, COUNTER_KINDS,
-    COUNTERS_PATH, FIXED_DATASETS, GROUPS, META_ATTRS, ROOT_ATTRS, RUNNING, SCHEMA_VERSION,
+from rig.runfile.io import one_line, open_for_read, writer_alive
+from rig.runfile.probe import check_readable
+from rig.runfile.schema import (
+    CAN_FLAG_ERROR,
+    CAN_FLAG_EXTENDED,
+    CAN_FLAG_REMOTE,
+    COUNTER_DTYPE,
+    COUNTER_KINDS,
+    COUNTERS_PATH,
+    FIXED_DATASETS,
+    GROUPS,
+    META_ATTRS,
+    ROOT_ATTRS,
+    RUNNING,
+    SCHEMA_VERSION,
 )
 
 _SPECS = {spec.path: spec for spec in FIXED_DATASETS}
@@ -169,7 +179,7 @@ def read_status(path: str | os.PathLike[str]) -> RunStatus:
 def list_runs(directory: str | os.PathLike[str], *, probe: bool = False) -> list[RunSummary]:
     """A summary row per *.h5 file in `directory`, by name; broken files show as "unreadable".
 
-    probe: read each file in a forked child first (rig.runfile_probe), so that a file
+    probe: read each file in a forked child first (rig.runfile.probe), so that a file
     on which HDF5 hangs or crashes is reported too; for command-line use.
     """
     directory = Path(directory)

@@ -20,8 +20,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from rig.can_messages import Command, CommandKind, RigMessage, Setpoint
 from rig.geometry import ActuatorPlan
+from rig.wire.can_messages import CommandKind, RigCommand, RigMessage, Setpoint
 
 LEAD_SAMPLES = 40
 
@@ -43,7 +43,7 @@ def run_messages(plan: ActuatorPlan, lead: int = LEAD_SAMPLES) -> Iterator[Timed
     def command(kind: CommandKind, due: float, start: int = 0) -> Timed:
         nonlocal counter
         counter += 1
-        return Timed(due, Command(kind, counter, start))
+        return Timed(due, RigCommand(kind, counter, start))
 
     before = -1e-3  # prefill goes out in order, just before START
     yield command(CommandKind.ENABLE, before)
@@ -60,6 +60,6 @@ def _sample(plan: ActuatorPlan, i: int, due: float) -> Iterator[Timed]:
         yield Timed(due, Setpoint(a + 1, i, float(plan.extension[i, a])))
 
 
-def safe_state(counter: int = 255) -> Command:
+def safe_state(counter: int = 255) -> RigCommand:
     """The command the rig sends in its `finally`: every actuator holds where it is."""
-    return Command(CommandKind.SAFE_STATE, counter)
+    return RigCommand(CommandKind.SAFE_STATE, counter)

@@ -4,12 +4,13 @@ The threads only receive and timestamp; decoding and writing happen on the
 runner's thread, because the run file has a single writer (rig.runfile). A
 failing receiver puts its exception on the queue, so the run stops with it.
 
-Queue items: ("can", can.Message) with the bus's own timestamp (Unix s);
-("serial", host_monotonic_s, [Frame], DecoderStats), also with no frames when a
-read brought only garbage; ("idle", "can", unix_s) when the bus had nothing for
-POLL_S; ("error", source, exception). Items of one source keep their order, so
-the runner knows up to when each stream is complete (its *horizon*, which the
-liveness rules of rig.interlocks measure silence against).
+Queue items, one small frozen dataclass per kind (`Received`): `CanReceived`, a frame
+with the bus's own timestamp (Unix s); `SerialReceived`, what one read of the port
+decoded, also with no frames when it brought only garbage; `Idle`, when the bus
+had nothing for POLL_S; `ReceiverFailed`, the exception that ended a receiver.
+Items of one source keep their order, so the runner knows up to when each stream
+is complete (its *horizon*, which the liveness rules of rig.run.interlocks
+measure silence against).
 """
 
 from __future__ import annotations
@@ -20,12 +21,13 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import can
 import serial
 
 from rig.config import RigConfig
-from rig.serial_frame import FrameDecoder
+from rig.wire.serial_frame import DecoderStats, Frame, FrameDecoder
 
 # python-can's socketcand client logs a warning whenever one recv ends inside a
 # frame and it waits for the rest (routine under load, not a fault), and an error
@@ -35,6 +37,42 @@ logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.CRITI
 
 POLL_S = 0.05  # s a receiver blocks before it looks at its stop flag
 IDLE_EVERY_S = 0.01  # s between two "nothing new" items of the serial receiver
+
+
+@dataclass(frozen=True)
+class CanReceived:
+    """A frame off the bus; `frame.timestamp` is the bus's own stamp (Unix s)."""
+
+    frame: can.Message
+
+
+@dataclass(frozen=True)
+class SerialReceived:
+    """What one read of the port decoded (maybe nothing: garbage or silence), when it
+    returned (host monotonic s), and the decoder's totals then."""
+
+    host_s: float
+    frames: list[Frame]
+    stats: DecoderStats
+
+
+@dataclass(frozen=True)
+class Idle:
+    """Receiver `source` found nothing new since `since` (Unix s for CAN)."""
+
+    source: str
+    since: float
+
+
+@dataclass(frozen=True)
+class ReceiverFailed:
+    """Receiver `source` ("can" or "serial") ended with `error`."""
+
+    source: str
+    error: BaseException
+
+
+Received = CanReceived | SerialReceived | Idle | ReceiverFailed
 
 
 def open_bus(config: RigConfig) -> can.BusABC:
@@ -49,7 +87,7 @@ class Receivers:
     """The CAN and serial receiver threads; `close()` stops and joins them (idempotent)."""
 
     def __init__(self, bus: can.BusABC, port: serial.SerialBase) -> None:
-        self.queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
         self._bus, self._port = bus, port
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._guard, args=(name, fn), name=f"rig-{name}")
@@ -62,16 +100,16 @@ class Receivers:
             loop()
         except Exception as exc:  # noqa: BLE001 - any failure goes to the runner, which stops
             if not self._stop.is_set():
-                self.queue.put(("error", name, exc))
+                self.queue.put(ReceiverFailed(name, exc))
 
     def _can(self) -> None:
         while not self._stop.is_set():
             asked = time.time()
             msg = self._bus.recv(timeout=POLL_S)
             if msg is not None:
-                self.queue.put(("can", msg))
+                self.queue.put(CanReceived(msg))
             else:  # nothing since `asked`: the stream is complete up to then
-                self.queue.put(("idle", "can", asked))
+                self.queue.put(Idle("can", asked))
 
     def _serial(self) -> None:
         decoder = FrameDecoder()
@@ -83,7 +121,7 @@ class Receivers:
             frames = decoder.feed(data) if data else []
             # an empty item too (rate-limited): garbage or silence still moves the horizon
             if frames or now - last_put >= IDLE_EVERY_S:
-                self.queue.put(("serial", now, frames, dataclasses.replace(decoder.stats)))
+                self.queue.put(SerialReceived(now, frames, dataclasses.replace(decoder.stats)))
                 last_put = now
 
     def close(self) -> None:

@@ -26,16 +26,31 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rig.errors import DataError
-from rig.runfile_io import (
-    DEFAULT_MIN_FREE_BYTES, describe, free_bytes, hold_writer_lock, is_disk_full, one_line,
-    refuse_unless_writable, reopen_for_status,
+from rig.runfile.io import (
+    DEFAULT_MIN_FREE_BYTES,
+    describe,
+    free_bytes,
+    hold_writer_lock,
+    is_disk_full,
+    one_line,
+    refuse_unless_writable,
+    reopen_for_status,
 )
-from rig.runfile_schema import (
-    CAN_DATA_BYTES, CAN_FLAG_ERROR, CAN_FLAG_EXTENDED, CAN_FLAG_REMOTE, COUNTER_KINDS,
-    DEFAULT_SOURCES, EXIT_STATUSES, SERIAL_FRAME_BYTES, ChannelSpec, RunInfo,
+from rig.runfile.schema import (
+    CAN_DATA_BYTES,
+    CAN_FLAG_ERROR,
+    CAN_FLAG_EXTENDED,
+    CAN_FLAG_REMOTE,
+    COUNTER_KINDS,
+    DEFAULT_SOURCES,
+    EXIT_STATUSES,
+    SERIAL_FRAME_BYTES,
+    ChannelSpec,
+    RunInfo,
     standard_channels,
 )
-from rig.runfile_tables import Table, create_layout, final_status_attrs, reserve_size
+from rig.runfile.tables import Table, create_layout, final_status_attrs, reserve_size
+
 
 class RunWriter:
     """Context manager writing one run file; every method is called from one thread.
@@ -155,7 +170,7 @@ class RunWriter:
         """Place every sample of `channel` again: `times` (n,) s, one per row recorded, in
         order; the channel's gaps move with the samples they lie between. Flushes first.
 
-        For a better clock fit at the end of a run (rig.recorder): a crash before this
+        For a better clock fit at the end of a run (rig.run.recorder): a crash before this
         leaves the first placements, each of which was the best fit at its time.
         """
         table = self._channels.get(channel)

@@ -62,7 +62,7 @@ EXIT_STATUSES = ("success", "abort", "fail")
 RUNNING = "running"
 # what `recover` writes over RUNNING: the file says what every reader says of it
 CRASHED = "crashed"
-#: "import": a log of another tool's made into a run file (rig.import_log)
+#: "import": a log of another tool's made into a run file (rig.convert.import_log)
 BACKENDS = ("sim", "hardware", "import")
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]{0,63}$")
 

@@ -16,8 +16,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import TypeVar
 
-from rig.live import LiveStatus
-from rig.runner import RunResult
+from rig.run.runner import RunResult
+from rig.run.status import LiveStatus
 from rig.tui.choice import ProfileChoice
 from rig.tui.run_process import RunProcess
 from rig.tui.session import BenchSession
