@@ -5,8 +5,8 @@ with the analysis (its own integrator, ramp shapes, effect shapes and sizes; con
 drawn ±30 % around Table 1, noise 0.5–4× the rig's). Only A.csv, B.csv and C.csv
 reach `analysis fit`; the generator's truth stays in another directory. The seeds are
 a subset of `bench/loop_unseen.py` (the benchmark runs every effect): a clean
-campaign, hardening springs at 23 % and 6.5 % of the peak force, and a 1.6 ms sensor
-delay.
+campaign, hardening springs at 23 % and 6.5 % of the peak force, a 1.6 ms sensor
+delay, a 3.3 % sensor gain, and a table that lags its command.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ import pytest
 
 from tests.test_unseen_generator import gen
 
-NAMES = {"hardening": "cubic_stiffness", "sensor_delay": "sensor_delay"}
+NAMES = {"hardening": "cubic_stiffness", "sensor_delay": "sensor_delay",
+         "sensor_gain": "sensor_gain"}
 
 
 def _fit(seed: int, effects: tuple[str, ...], tmp_path: Path) -> dict:
@@ -49,20 +50,26 @@ def test_nothing_is_named_on_a_clean_unseen_campaign(tmp_path):
 
 
 @pytest.mark.parametrize("seed,effect", [(301, "hardening"), (305, "hardening"),
-                                         (901, "sensor_delay")])
+                                         (901, "sensor_delay"), (1001, "sensor_gain")])
 def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
     """Seed 305's hardening is 6.5 % of the peak force: equation error ranks a preload
     first (BIC fall 27 against the cubic's 24), output error refuses it (|t| 0.3), and
     the cubic is tried next by its own first-step fall (with the preload in the model it
-    fell below the margin, and nothing was named: 4.2 x noise)."""
+    fell below the margin, and nothing was named: 4.2 x noise).
+
+    Seed 1001's sensor gain is 3.3 %: at the constants identification gave, equation
+    error names it first (BIC fall 28); at the base refit's, whose dead band and stop
+    velocity have absorbed it, a one-sided stiffness comes first (18), which output
+    error keeps at 6.8 x noise if it is the one refitted."""
     doc = _fit(seed, (effect,), tmp_path)
     assert doc["effects_added"] == [NAMES[effect]]
     # the library's shape is the generator's for both: the residual reaches the noise
-    # (measured 1.01 and 0.98 x; the issue asks for <= 1.3 x)
+    # (measured 1.01, 0.98 and 1.04 x; the issue asks for <= 1.3 x)
     assert doc["residual_after"]["residual_over_noise"] < 1.3
     assert doc["unexplained"]["value"] is False
     truth = gen.make_campaign(seed, (effect,)).effects[0]
-    param = {"hardening": ("k3", "k3"), "sensor_delay": ("sensor_delay", "d")}[effect]
+    param = {"hardening": ("k3", "k3"), "sensor_delay": ("sensor_delay", "d"),
+             "sensor_gain": ("sensor_gain", "g")}[effect]
     value = doc["parameters"][param[0]]["value"]
     assert value == pytest.approx(truth[param[1]], rel=0.10)
 

@@ -64,6 +64,11 @@ class Naming:
     # not selected, its best at the first step; absent at the library's own shape
     shapes: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
+    @property
+    def top_gain(self) -> float:
+        """The first name's BIC fall; -inf when nothing is named."""
+        return self.gains[0] if self.gains else -np.inf
+
     def to_try(self) -> tuple[str, ...]:
         """The top name, then, should it be refused, the others above the margin in the
         order of their first step's BIC falls: the forward order after the top holds
