@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from analysis.blas import one_blas_thread
 from analysis.cli_fit import add_fit_parser, run_fit
 from analysis.design.cli import add_design_parser, run_design
 from analysis.force_driven.datasets import add_datasets_parser, run_datasets
@@ -27,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    one_blas_thread()
     return guarded(_main, argv, "analysis")
 
 

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 from scipy.interpolate import make_smoothing_spline
 
-from analysis.differentiate_rts import RTS_ORDERS, _rts_grid, _rts_q
+from analysis.differentiate_rts import RTS_ORDERS, rts_grid, rts_q
 
 METHODS = ("savgol", "butter", "spline", "rts")
 AUTO = "butter"
@@ -213,14 +213,14 @@ def _select_rts(y: NDArray, dt: float, sigma: float, fixed: dict) -> dict:
         yn = (y - y[0]) / sigma if sigma > 0 else y - y[0]
         lo, hi = _bounds(n, dt)
         grid = np.geomspace(max(lo, pilot / 2), min(hi, pilot * 2), 7)
-        evidence = {p: max(e for _, e in _rts_grid(yn, dt, grid, p)) for p in RTS_ORDERS}
+        evidence = {p: max(e for _, e in rts_grid(yn, dt, grid, p)) for p in RTS_ORDERS}
         fixed["order"] = max(evidence, key=evidence.get)
     p = int(fixed["order"])
     if "cutoff_hz" not in fixed:
-        costs = lambda grid: [_cp(run, y, sigma) for run, _ in _rts_grid(y, dt, grid, p, False)]
+        costs = lambda grid: [_cp(run, y, sigma) for run, _ in rts_grid(y, dt, grid, p, False)]
         fixed["cutoff_hz"] = _bracket(costs, pilot, n, dt)
     fc = float(fixed["cutoff_hz"])
-    out = {"cutoff_hz": fc, "order": p, "q": _rts_q(sigma, dt, fc, p)}
+    out = {"cutoff_hz": fc, "order": p, "q": rts_q(sigma, dt, fc, p)}
     if evidence:
         out["log_evidence"] = {k: round(float(v), 3) for k, v in evidence.items()}
     return out
@@ -234,7 +234,7 @@ def _smoother(name: str, dt: float, s: dict, n: int) -> Callable[[NDArray], Trip
     if name == "savgol":
         return _savgol(dt, int(s["window"]))
     if name == "rts":
-        return _rts_grid(np.zeros(n), dt, [float(s["cutoff_hz"])], int(s["order"]), False)[0][0]
+        return rts_grid(np.zeros(n), dt, [float(s["cutoff_hz"])], int(s["order"]), False)[0][0]
     return {"butter": _butter, "spline": _spline}[name](dt, float(s["cutoff_hz"]))
 
 

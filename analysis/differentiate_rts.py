@@ -3,7 +3,7 @@
 An integrated-Wiener model of order p (p = 3: white jerk; 4: white snap; 5)
 whose process noise puts the smoother's half-amplitude point at the cutoff fc:
 its response is 1/(1 + (f/fc)^(2p)). Split from `analysis.differentiate` to
-keep each module short; only `_rts_grid` and `_rts_q` are used there.
+keep each module short; `rts_grid` and `rts_q` are what it uses.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ Triple = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 # are computed for a whole grid of cutoffs in one loop that stops once they settle.
 
 
-def _rts_q(sigma: float, dt: float, fc: float, p: int) -> float:
+def rts_q(sigma: float, dt: float, fc: float, p: int) -> float:
     """Intensity of the white p-th derivative (m²/s^(2p-1)) that puts the cutoff at fc."""
     return sigma**2 * dt * (2 * np.pi * fc) ** (2 * p)
 
@@ -126,8 +126,8 @@ def _rts_pass(y: NDArray, F: NDArray, prior: NDArray, post: NDArray,
     return sm, evidence
 
 
-def _rts_grid(y: NDArray, dt: float, fcs: ArrayLike, p: int,
-              evidence: bool = True) -> list[tuple[Callable[[NDArray], Triple], float]]:
+def rts_grid(y: NDArray, dt: float, fcs: ArrayLike, p: int,
+             evidence: bool = True) -> list[tuple[Callable[[NDArray], Triple], float]]:
     """For each cutoff: the smoother as a function of any signal, and the evidence of y."""
     fcs = np.atleast_1d(np.asarray(fcs, dtype=float))
     F, Q = _rts_model(2 * np.pi * fcs * dt, p)

@@ -23,10 +23,11 @@ from scipy.interpolate import PPoly
 
 from analysis.identify.input_error import refine_table
 from analysis.identify.loading import csv_column, read_csv_table
+from analysis.identify.table_motion import estimate_table_motion
 from analysis.model.isolator import N_GLOBAL, IsolatorModel
 from analysis.model.model_json import SENSOR_NAMES, IdentifiedModel
 from analysis.simulate import DEFAULT_DT, Response, motion_from_samples, simulate, simulate_batch
-from analysis.table_motion import estimate_table_motion, quintic_hermite
+from analysis.simulate.motion import quintic_hermite
 from rig.errors import DataError
 from rig.profile import load_profile
 from rig.units import factor

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.blas import one_blas_thread
 from analysis.design.design import design, scales
 from analysis.design.ideal import ideal_curve
 from analysis.design.objective import Evaluator
@@ -71,6 +72,7 @@ def one(free: tuple[str, ...], seed: int = 0) -> dict:
 
 
 def main() -> None:
+    one_blas_thread()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--out", type=Path)

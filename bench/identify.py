@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from analysis.blas import one_blas_thread
 from analysis.identify.cramer_rao import cramer_rao
 from analysis.identify.pipeline import REFINED, identify
 from analysis.identify.synthetic import synthetic_runs
@@ -90,6 +91,7 @@ def monte_carlo(draws: int) -> None:
 
 
 def main() -> None:
+    one_blas_thread()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--draws", type=int, default=100, help="Monte Carlo noise draws")
     parser.add_argument("--no-wall", action="store_true", help="the Monte Carlo only")

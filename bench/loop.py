@@ -27,6 +27,7 @@ import numba
 import numpy as np
 from scipy.signal import savgol_filter
 
+from analysis.blas import one_blas_thread
 from analysis.loop import LoopRun, close_loop
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
@@ -146,6 +147,7 @@ def confusion(seeds: int, quick: bool) -> dict[str, object]:
 
 
 def main() -> None:
+    one_blas_thread()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one magnitude, noise, seed")
     parser.add_argument("--seeds", type=int, default=1, help="noise seeds per case")

@@ -31,6 +31,7 @@ import sys
 import time
 from pathlib import Path
 
+from analysis.blas import one_blas_thread
 from analysis.lot.cluster import connect
 from analysis.lot.schedule import run_lot
 from analysis.lot.store import UnitStore
@@ -120,6 +121,7 @@ def kill_and_resume(work: Path, units: int) -> str:
 
 
 def main() -> int:
+    one_blas_thread()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--units", type=int, default=100)
     p.add_argument("--defective", type=int, default=5)

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from analysis.blas import one_blas_thread
 from analysis.model.report_constants import report_model  # noqa: E402
 from analysis.simulate import simulate, simulate_batch  # noqa: E402
 from analysis.simulate.reference import simulate_reference  # noqa: E402
@@ -30,6 +31,7 @@ def best_of(fn, repeat: int) -> float:
 
 
 def main() -> None:
+    one_blas_thread()
     model, profile = report_model("average"), load_profile("A")
     motion = profile.motion()
     simulate(model, motion)  # compile outside the timing

@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from analysis.blas import one_blas_thread
 from analysis.model.model_json import IdentifiedModel, read_model
 from analysis.model.report_constants import RUNS, report_model
 from analysis.predict import DRAWS, base_motion, predict
@@ -56,6 +57,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command != "serve":  # numerical work by our choice (analysis.blas); serve is not
+        one_blas_thread()
     if args.command == "response":
         return run_response_command(args)
     elif args.command == "generate":

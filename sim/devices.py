@@ -49,9 +49,9 @@ from collections.abc import Callable, Mapping
 
 import can
 
+from analysis.simulate.motion import quintic_at
 from rig.wire import can_messages as cm
 from rig.wire.can_messages import CommandKind, Fault, NodeState, RigCommand, Setpoint
-from sim.hermite import quintic_at
 
 WATCHDOG_S = 0.1  # s a needed setpoint may be late before the actuator holds
 STENCIL = 2  # samples each side of a knot its velocity and acceleration are read from

@@ -45,8 +45,8 @@ from scipy.interpolate import PPoly
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
 from analysis.simulate import simulate
-from analysis.table_motion import quintic_hermite
-from sim.hermite import cubic_at, quintic_at
+from analysis.simulate.motion import quintic_at, quintic_hermite
+from sim.hermite import cubic_at
 
 SERVO_TAU = 0.005  # s, first-order lag of a servo-hydraulic actuator (~30 Hz bandwidth)
 DT = 1e-3  # s, plant grid

@@ -8,10 +8,15 @@ from collections.abc import Iterator
 
 import pytest
 
+from analysis.blas import one_blas_thread
 from analysis.model.report_constants import report_model
 from rig.config import load_config
 from rig.profile import load_profile
 from sim.rig_sim import SimRig
+
+# The fits in this process run as the `analysis` CLI runs them: BLAS on one thread
+# (analysis/blas.py).
+one_blas_thread()
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,4 @@
-"""The table's motion as step-pulse ramps through a fitted servo lag (analysis.table_motion).
+"""The table's motion as step-pulse ramps through a fitted servo lag (analysis.identify.table_motion).
 
 Known truth: a profile's exact minimum-jerk motion passed through p' = (r − p)/τ,
 plus white sensor noise. Tolerances are the fit's own standard errors (from the
@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 
 from analysis.identify import input_error
 from analysis.identify.output_error import noise_sigma
-from analysis.table_motion import (
+from analysis.identify.table_motion import (
     estimate_table_motion,
     lag_response,
     params_ramps,

@@ -15,7 +15,7 @@ import pytest
 
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
-from analysis.table_motion import quintic_hermite
+from analysis.simulate.motion import quintic_hermite
 from rig.config import load_config
 from rig.geometry import x_components
 from rig.profile import load_profile

@@ -9,8 +9,8 @@ the whole run fell back to the spline (k1 off by up to 0.7 %, 100 × its spread)
 import pytest
 
 from analysis.identify.synthetic import synthetic_runs
+from analysis.identify.table_motion import estimate_table_motion
 from analysis.model.report_constants import report_model
-from analysis.table_motion import estimate_table_motion
 
 
 @pytest.mark.parametrize("seed, run", [(1050, 0), (1052, 1), (1058, 1)])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from analysis.table_motion import estimate_table_motion
+from analysis.identify.table_motion import estimate_table_motion
 from sim.generate import SENSOR_NOISE, generate_campaign
 
 

@@ -108,13 +108,3 @@ def base_terms(mass_known: bool, stiffness: bool) -> list[str]:
     if stiffness:
         names.append(STIFFNESS)
     return names
-
-
-def resisting_force(params: dict[str, float], q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Σ θ φ(q, q̇) for fitted parameters keyed by term name (the mass term excluded)."""
-    out = np.zeros_like(np.asarray(q, float))
-    zero = np.zeros_like(out)
-    for name, value in params.items():
-        if name != MASS:
-            out = out + value * term(name).regressor(q, v, zero)
-    return out

@@ -49,7 +49,7 @@ from analysis.identify.output_error import (
     scaled_residual,
     with_log_covariance,
 )
-from analysis.table_motion import TableMotion, step_pulse_motion
+from analysis.identify.table_motion import TableMotion, step_pulse_motion
 
 SKEW_STEP = 2e-5  # s: finite-difference step, far above rounding, linear at 0.1 ms scale
 SKEW_SCALE = 1e-4  # s: the column's unit, so that it is scaled like the constants' columns

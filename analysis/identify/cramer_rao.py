@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from analysis.identify.output_error import RunData, _simulate_runs
+from analysis.identify.output_error import RunData, residual_and_jacobian
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import simulate
 from rig.profile import Profile, load_profile
@@ -102,7 +102,7 @@ def cramer_rao(model: IsolatorModel, names: Sequence[str], profiles: Sequence[st
         runs.append(RunData(prof.name, r.t, prof.motion(), r.x, sigma_x))
         profs.append(prof)
     theta = np.log([model.parameters()[n] for n in names])
-    _, J, _ = _simulate_runs(model, names, theta, runs, True)
+    _, J, _ = residual_and_jacobian(model, names, theta, runs, True)
     info = J.T @ J
     schur = info.copy()
     start = 0

@@ -2,7 +2,7 @@
 
 The model is driven by the table motion estimated from the table sensor (a few
 minimum-jerk ramp parameters p fitted to thousands of noisy samples, see
-`analysis.table_motion`). Output error then treats that input as exact, and
+`analysis.identify.table_motion`). Output error then treats that input as exact, and
 the Jacobian's covariance counts only the mass sensor's noise. Measured on
 runs A, B, C with 25.4 µm on both sensors, that understates the spread of the
 constants by up to 4× (bench/identify.py): an error of a few µs in a ramp's
@@ -33,9 +33,7 @@ from analysis.identify.output_error import (
     gram_inverse,
     with_log_covariance,
 )
-from analysis.model.isolator import IsolatorModel
-from analysis.simulate import RunSetup, simulate_runs
-from analysis.table_motion import (
+from analysis.identify.table_motion import (
     TableMotion,
     params_ramps,
     refine_step_pulse,
@@ -44,6 +42,8 @@ from analysis.table_motion import (
     step_pulse_value,
     tied_ramps,
 )
+from analysis.model.isolator import IsolatorModel
+from analysis.simulate import RunSetup, simulate_runs
 
 STEP = (1e-5, 1e-6)  # FD steps: s for ramp times and the lag, m for levels; ≪ their spread
 
@@ -62,7 +62,7 @@ def _motion(t: np.ndarray, table: TableMotion, p: np.ndarray, tied: np.ndarray):
 def refine_table(t: np.ndarray, u: np.ndarray, table: TableMotion) -> TableMotion:
     """The step-pulse fit refined on the whole record: every ramp, level and the lag at once.
 
-    `analysis.table_motion` fits each moving stretch on its own samples, so a
+    `analysis.identify.table_motion` fits each moving stretch on its own samples, so a
     level held for 2 s is set by the few samples next to its ramps. Fitted
     together on every sample the levels use all the rest they hold for — the
     least-squares (and, for white noise, maximum-likelihood) input whose

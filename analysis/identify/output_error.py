@@ -338,10 +338,10 @@ def correlated_noise_factor(residual: np.ndarray, direction: np.ndarray,
     return max(num / den, 1.0) if den > 0 else 1.0
 
 
-def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray,
-                   runs: Sequence[RunData], with_jacobian: bool,
-                   base: Sequence[np.ndarray] | None = None
-                   ) -> tuple[np.ndarray, np.ndarray | None, list[np.ndarray]]:
+def residual_and_jacobian(model: IsolatorModel, names: Sequence[str], theta: np.ndarray,
+                          runs: Sequence[RunData], with_jacobian: bool,
+                          base: Sequence[np.ndarray] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray | None, list[np.ndarray]]:
     """Scaled residual (x_sim − x)/σ_x of all runs, its Jacobian in log coordinates,
     and the simulated x of each run at θ.
 
@@ -368,7 +368,7 @@ def _simulate_runs(model: IsolatorModel, names: Sequence[str], theta: np.ndarray
 
 def scaled_residual(model: IsolatorModel, runs: Sequence[RunData]) -> np.ndarray:
     """(x_sim − x)/σ_x of all runs, concatenated, at `model`."""
-    return _simulate_runs(model, (), np.empty(0), runs, False)[0]
+    return residual_and_jacobian(model, (), np.empty(0), runs, False)[0]
 
 
 def determined(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str],
@@ -394,7 +394,7 @@ def determined(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[st
     different tipped `sim generate` runs from 0.95 σ to 1573 σ that way).
     """
     theta = np.log([model.parameters()[n] for n in names])
-    r, J, _ = _simulate_runs(model, names, theta, runs, True)
+    r, J, _ = residual_and_jacobian(model, names, theta, runs, True)
     log_std = np.sqrt(np.diag(gram_inverse(J)))
     keep = tuple(n for n, s in zip(names, log_std) if s <= limit)
     # each column is its own constant's perturbation from one base point: the
@@ -429,7 +429,7 @@ def refine(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str],
     def fun(theta: np.ndarray) -> np.ndarray:
         if at_theta0(theta):
             return at_start[0]
-        r, _, xs = _simulate_runs(model, names, theta, runs, False)
+        r, _, xs = residual_and_jacobian(model, names, theta, runs, False)
         last.update(theta=theta.copy(), xs=xs)
         return r
 
@@ -437,8 +437,8 @@ def refine(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str],
         if at_theta0(theta):
             return at_start[1]
         known = np.array_equal(theta, last.get("theta"))
-        return _simulate_runs(model, names, theta, runs, True,
-                              base=last["xs"] if known else None)[1]
+        return residual_and_jacobian(model, names, theta, runs, True,
+                                     base=last["xs"] if known else None)[1]
 
     # a decade either way of the start: the start is the equation-error estimate
     bounds = (theta0 - np.log(10.0), theta0 + np.log(10.0))
@@ -511,7 +511,7 @@ def one_step(model: IsolatorModel, runs: Sequence[RunData], names: Sequence[str]
         if k == CHORD_STEPS:
             return None
         trial = np.clip(theta + step, theta0 - np.log(10.0), theta0 + np.log(10.0))
-        r_trial = _simulate_runs(model, names, trial, runs, False)[0]
+        r_trial = residual_and_jacobian(model, names, trial, runs, False)[0]
         cost = float(r_trial @ r_trial)
         predicted = float(np.sum((r + J0 @ (trial - theta)) ** 2))
         if not cost < float(r @ r) or (k == 0 and cost > predicted + LINEAR_SLACK):

@@ -14,7 +14,7 @@ with the regressors), while output error compares the simulated displacement
 with the measured one, where the only noise is the sensor's.
 
 Errors in variables: the table displacement u drives the model and is itself
-measured. Both stages use the table motion estimated by `analysis.table_motion`
+measured. Both stages use the table motion estimated by `analysis.identify.table_motion`
 (minimum-jerk ramps fitted to the samples, accepted only if what is left is
 the sensor's noise; else a smoothing spline) for u and u̇, so the table
 sensor's noise enters neither the regressors nor the simulated response.
@@ -43,12 +43,12 @@ from analysis.identify.output_error import (
     slice_residuals,
 )
 from analysis.identify.run_errors import RunError, compare
+from analysis.identify.table_motion import TableMotion, estimate_table_motion
 from analysis.identify.varpro import Data, Projection, project
 from analysis.model.isolator import IsolatorModel
 from analysis.model.report_constants import report_model
 from analysis.rest import active_mask
 from analysis.simulate import simulate
-from analysis.table_motion import TableMotion, estimate_table_motion
 
 LINEAR = ("k1", "k2", "c1", "c2")
 REFINED = ("k1", "k2", "c1", "c2", "alpha", "beta", "delta", "F_break", "epsilon")

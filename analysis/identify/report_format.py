@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 
 from analysis.identify.output_error import Z95
@@ -153,7 +150,3 @@ def fit_json(fit: IsolatorFit) -> dict:
                                           "table_motion": pr.table.method,
                                           "moving_fraction": float(pr.active.mean())}
                             for pr in fit.prepared}}
-
-
-def write_json(fit: IsolatorFit, path: Path) -> None:
-    Path(path).write_text(json.dumps(fit_json(fit), indent=2), encoding="utf-8")

@@ -17,10 +17,10 @@ import numpy as np
 
 from analysis.identify.output_error import RunData, noise_sigma
 from analysis.identify.run_errors import compare
+from analysis.identify.table_motion import estimate_table_motion
 from analysis.loop.candidates import Candidate
 from analysis.loop.recent import Recent
 from analysis.loop.refit import Fit, Hypothesis, predict
-from analysis.table_motion import estimate_table_motion
 
 if TYPE_CHECKING:  # the pipeline imports the loop's callers; only its type is needed here
     from analysis.identify.pipeline import IsolatorFit

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+from analysis.blas import one_blas_thread
 from analysis.lot.cluster import connect
 from analysis.lot.report import format_lot, lot_json
 from analysis.lot.schedule import Progress, run_lot
@@ -146,6 +147,7 @@ def _terminate_as_interrupt() -> Iterator[None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m analysis.lot.cli DIR ...`: the same as `analysis lot DIR ...`."""
+    one_blas_thread()
     parser = argparse.ArgumentParser(prog="analysis")
     add_lot_parser(parser.add_subparsers(dest="command"))
     return guarded(lambda a: run_lot_command(parser.parse_args(["lot", *(a or [])])),

@@ -51,6 +51,7 @@ from scipy.interpolate import PPoly
 from scipy.optimize import least_squares
 
 from analysis.identify.output_error import noise_sigma, smooth_motion, table_at_rest
+from analysis.simulate.motion import quintic_hermite
 from rig.profile import Profile, Segment
 
 ACCEPT_RATIO = 1.10  # residual RMS over σ_u for the command model to be believed
@@ -343,27 +344,7 @@ def _horner3(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return v, d1, d2
 
 
-def quintic_hermite(t: np.ndarray, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> PPoly:
-    """The C² piecewise quintic through position, velocity and acceleration at `t`."""
-    h = np.diff(t)
-    p0, v0, a0, p1, v1, a1 = p[:-1], v[:-1], a[:-1], p[1:], v[1:], a[1:]
-    d = p1 - (p0 + v0 * h + 0.5 * a0 * h**2)
-    e = v1 - (v0 + a0 * h)
-    f = a1 - a0
-    c = np.array([(6 * d - 3 * e * h + 0.5 * f * h**2) / h**5,
-                  (-15 * d + 7 * e * h - f * h**2) / h**4,
-                  (10 * d - 4 * e * h + 0.5 * f * h**2) / h**3,
-                  0.5 * a0, v0, p0])
-    return PPoly(c, np.asarray(t, float))
-
-
 # -- fitting --------------------------------------------------------------------------
-
-def fit_step_pulse(t: np.ndarray, u: np.ndarray, sigma: float) -> PPoly | None:
-    """Rests and minimum-jerk ramps fitted to u; None when no motion is found."""
-    ramps = fit_ramps(t, u, sigma)
-    return ramps_motion(t, ramps) if ramps else None
-
 
 def fit_ramps(t: np.ndarray, u: np.ndarray, sigma: float
               ) -> list[tuple[float, float, float, float]]:
