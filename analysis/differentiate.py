@@ -217,7 +217,9 @@ def _select_rts(y: NDArray, dt: float, sigma: float, fixed: dict) -> dict:
         fixed["order"] = max(evidence, key=evidence.get)
     p = int(fixed["order"])
     if "cutoff_hz" not in fixed:
-        costs = lambda grid: [_cp(run, y, sigma) for run, _ in rts_grid(y, dt, grid, p, False)]
+        def costs(grid):
+            return [_cp(run, y, sigma) for run, _ in rts_grid(y, dt, grid, p, False)]
+
         fixed["cutoff_hz"] = _bracket(costs, pilot, n, dt)
     fc = float(fixed["cutoff_hz"])
     out = {"cutoff_hz": fc, "order": p, "q": rts_q(sigma, dt, fc, p)}
@@ -274,7 +276,8 @@ def _butter(dt: float, fc: float) -> Callable[[NDArray], Triple]:
     sos = _butter_sos(dt, fc).copy()  # scipy's filter wants a writable buffer
 
     def run(y: NDArray) -> Triple:
-        pad = min(len(y) - 1, int(3 / (fc * dt)))  # the default 27 samples is shorter than the transient
+        # the default 27 samples is shorter than the transient
+        pad = min(len(y) - 1, int(3 / (fc * dt)))
         return _central(signal.sosfiltfilt(sos, y, padlen=pad), dt)
 
     return run

@@ -72,10 +72,11 @@ class ServoAxis:
 
         The target moves linearly from the last step's to this one (the controller's
         C² interpolation of its setpoints, sampled every step), and the lag
-        p' = (r − p)/τ is solved exactly for that ramp. Position and velocity are then continuous across grid points, as
-        the Hermite the integrator reads needs: holding the target over the step makes
-        the velocity jump by Δr/τ at every point, which the cubic turns into a table
-        acceleration of hundreds of m/s² (measured: 760 m/s² on run A's 20 m/s² ramp).
+        p' = (r − p)/τ is solved exactly for that ramp. Position and velocity are then
+        continuous across grid points, as the Hermite the integrator reads needs:
+        holding the target over the step makes the velocity jump by Δr/τ at every
+        point, which the cubic turns into a table acceleration of hundreds of m/s²
+        (measured: 760 m/s² on run A's 20 m/s² ramp).
         """
         if self.stuck:
             self.velocity, self.acceleration, self.target = 0.0, 0.0, target

@@ -1,4 +1,6 @@
-"""Shared fixtures: the report's model and profiles; the simulated rig; a check that nothing leaks."""
+"""Shared fixtures: the report's model and profiles; the simulated rig; a check that
+nothing leaks.
+"""
 
 from __future__ import annotations
 

@@ -216,7 +216,8 @@ def test_incomplete_runfile_is_refused(tmp_path: Path, run_a, capsys) -> None:
 def test_subprocess_smoke(tmp_path: Path, run_a) -> None:
     path = write_csv(tmp_path / "A.csv", run_a)
     r = subprocess.run([sys.executable, "-m", "analysis.cli", "fit", str(path), "--mass-lb",
-                        "6000", "--no-refine"], check=False, capture_output=True, text=True, timeout=120)
+                        "6000", "--no-refine"], check=False, capture_output=True, text=True,
+                       timeout=120)
     assert r.returncode == 0, r.stderr
     assert "k1" in r.stdout and "lb/in" in r.stdout
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import copy
 import math
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import can
 import numpy as np

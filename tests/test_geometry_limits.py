@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,8 +17,13 @@ from rig.config import RigConfig, load_config, parse_config
 from rig.errors import LimitError, RigError
 from rig.limits import QUANTITIES, check_all, check_plan, force_limit, plan_margins
 from rig.paths import data_file
-from rig.profile import PEAK_ACCELERATION_FACTOR, PEAK_VELOCITY_FACTOR, Profile, Segment, \
-    load_profile
+from rig.profile import (
+    PEAK_ACCELERATION_FACTOR,
+    PEAK_VELOCITY_FACTOR,
+    Profile,
+    Segment,
+    load_profile,
+)
 from rig.units import INCH, POUND_FORCE, POUND_MASS
 
 CONFIG = load_config()

@@ -144,7 +144,8 @@ def test_a_force_offset_is_refitted_from_the_constants_the_loop_started_from():
     for run in ("A", "B", "C"):
         assert result.error_after[run]["residual_over_noise"] < 6.0
     assert result.effects_added == ["force_offset"]
-    assert result.diagnosis_after.residual_over_noise < 0.06 * result.diagnosis_before.residual_over_noise
+    assert (result.diagnosis_after.residual_over_noise
+            < 0.06 * result.diagnosis_before.residual_over_noise)
 
 
 @pytest.mark.parametrize("seed", range(10))

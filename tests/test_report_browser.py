@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from analysis.loop.runs import loop_runs
 from analysis.identify.pipeline import MeasuredRun, identify
 from analysis.identify.report_format import SHOWN, fit_json
 from analysis.loop import close_loop
 from analysis.loop.report import loop_json
+from analysis.loop.runs import loop_runs
 from analysis.model.report_constants import report_model
 from analysis.report_html import num
 from analysis.report_page import write_report

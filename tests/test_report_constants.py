@@ -7,8 +7,14 @@ import tomllib
 import numpy as np
 import pytest
 
-from analysis.model.report_constants import (NAMES, RUNS, format_table1, load_table1,
-                                             report_model, si_unit)
+from analysis.model.report_constants import (
+    NAMES,
+    RUNS,
+    format_table1,
+    load_table1,
+    report_model,
+    si_unit,
+)
 from rig.paths import data_file
 from rig.units import from_si, to_si
 

@@ -1,4 +1,5 @@
-"""The table's motion as step-pulse ramps through a fitted servo lag (analysis.identify.table_motion).
+"""The table's motion as step-pulse ramps through a fitted servo lag
+(analysis.identify.table_motion).
 
 Known truth: a profile's exact minimum-jerk motion passed through p' = (r − p)/τ,
 plus white sensor noise. Tolerances are the fit's own standard errors (from the

@@ -143,7 +143,8 @@ async def test_estop_acts_from_every_focusable_widget_of_every_screen(
                     f"{status.exit_status} {status.reason!r}, not e-stopped")
                 reached.add(target)
     assert focusable <= reached, f"widgets no view reached: {sorted(focusable - reached)}"
-    assert screen_classes() <= shown_screens, f"screens not shown: {screen_classes() - shown_screens}"
+    assert screen_classes() <= shown_screens, (
+        f"screens not shown: {screen_classes() - shown_screens}")
     assert "SetupScreen/Input#file" in reached  # the box of issue 18 (a sanity check)
 
 

@@ -1,4 +1,6 @@
-"""The independent campaign generator (bench/unseen/generator.py): its own physics, its own files."""
+"""The independent campaign generator (bench/unseen/generator.py): its own physics, its
+own files.
+"""
 
 from __future__ import annotations
 
@@ -83,7 +85,8 @@ def test_files_header_and_separate_truth(clean, clean_dir):
     assert set(truth) >= {"constants", "effects", "noise"}
     assert truth["effects"] == []
     assert truth["noise"] == pytest.approx(clean.noise)
-    assert set(truth["constants"]) >= {"k1", "k2", "c1", "c2", "alpha", "beta", "delta", "eps", "F_b"}
+    assert set(truth["constants"]) >= {"k1", "k2", "c1", "c2", "alpha", "beta", "delta", "eps",
+                                       "F_b"}
 
 
 def test_clean_physics(clean):

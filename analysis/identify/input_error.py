@@ -14,9 +14,10 @@ G δp with G = −(JᵀJ)⁻¹ Jᵀ J_p when p is off by δp, and δp has the co
 C_p = (J_uᵀ J_u)⁻¹ of the ramp fit (J_u: the fitted u's derivative over p in
 units of σ_u: the white noise of u's low-frequency power, `TableMotion.sigma_lowfreq`,
 which for a channel interpolated onto another clock exceeds each sample's σ). So
-cov(log θ) = σ²(JᵀJ)⁻¹ + Σ_runs G C_p Gᵀ. p is the ramps' parameters and, when the table motion was fitted with a servo lag
-(`TableMotion.lag` > 0), the lag τ: its uncertainty reaches the constants the
-same way, and u is perturbed through the same lagged model it was fitted with.
+cov(log θ) = σ²(JᵀJ)⁻¹ + Σ_runs G C_p Gᵀ. p is the ramps' parameters and, when the
+table motion was fitted with a servo lag (`TableMotion.lag` > 0), the lag τ: its
+uncertainty reaches the constants the same way, and u is perturbed through the same
+lagged model it was fitted with.
 """
 
 from __future__ import annotations

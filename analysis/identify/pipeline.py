@@ -421,10 +421,11 @@ def _nonsmooth(fit: OutputErrorFit, runs: Sequence[RunData], name: str, progress
     at the fit. Freed only when a value there beats the held one by SIGNIFICANT_CHI2,
     scaled by how much the residual's own correlation moves a cost difference along
     that change (`correlated_noise_factor`: a model µm off the truth moves it many times
-    more than white noise), and the fit from it, with `name` free, keeps that gain and leaves every constant
-    within HOLD_LOG_STD: a freed breakaway force that ends in a valley above the held fit's
-    cost (one where a 10× force trades off against α) is refused. Held, the range of
-    values within CONSISTENT_CHI2 of the best is kept as `fit.consistent[name]`.
+    more than white noise), and the fit from it, with `name` free, keeps that gain and
+    leaves every constant within HOLD_LOG_STD: a freed breakaway force that ends in a
+    valley above the held fit's cost (one where a 10× force trades off against α) is
+    refused. Held, the range of values within CONSISTENT_CHI2 of the best is kept as
+    `fit.consistent[name]`.
     """
     held = fit.model.parameters()[name]
     values = held * np.asarray(SLICE_FACTORS)

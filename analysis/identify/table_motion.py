@@ -14,13 +14,14 @@ use the other standard motion laws: cycloidal, harmonic (half-cosine) or
 parabolic (constant acceleration). The shape is one more choice of the fit:
 minimum-jerk is tried first, and where it does not reach the noise every shape
 of `RAMP_SHAPES` is fitted and the one with the least residual is kept (a wrong
-shape misses a 0.14 m ramp by hundreds of µm: the choice is never close). Fitting those numbers to the thousands of samples
-estimates the input far better than the noise of any one sample. This module
-fits them: rests are found from the data, each moving stretch is one ramp or
-several back to back (split where the motion turns), and the fit is accepted
-only if what is left is the sensor's noise (RMS within 10 % of σ). Otherwise
-the table did not follow a step-pulse profile (another rig's excitation, a
-resonance) and the caller falls back to the smoothing spline.
+shape misses a 0.14 m ramp by hundreds of µm: the choice is never close). Fitting
+those numbers to the thousands of samples estimates the input far better than the
+noise of any one sample. This module fits them: rests are found from the data,
+each moving stretch is one ramp or several back to back (split where the motion
+turns), and the fit is accepted only if what is left is the sensor's noise (RMS
+within 10 % of σ). Otherwise the table did not follow a step-pulse profile
+(another rig's excitation, a resonance) and the caller falls back to the
+smoothing spline.
 
 Servo lag. Servo-hydraulic actuators follow their setpoints through a lag:
 the table is the commanded ramps passed through p' = (r − p)/τ, which a plain

@@ -287,7 +287,8 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                             ib += 1
                         if ib < nb and breaks[ib] < t_end - 1e-9 * h:
                             t_stop = breaks[ib]
-                        if 0 < ib < nb:  # a piece shorter than LAND_PIECE steps: that many across it
+                        # a piece shorter than LAND_PIECE steps: that many across it
+                        if 0 < ib < nb:
                             t_stop = min(t_stop, t + (breaks[ib] - breaks[ib - 1]) / LAND_PIECE)
                     hrem = t_stop - t
                     # a dead-band mode the state contradicts (|z| < δ yet "outside"): an

@@ -38,7 +38,8 @@ def simulate_reference(model: IsolatorModel, motion, t_out: np.ndarray, rtol: fl
     m, delta, fb, eps = model.mass, model.dead_band, model.breakaway, model.stop_velocity
 
     def udd(t):
-        return float(ua(np.clip(t, motion.x[0], motion.x[-1]))) if motion.x[0] < t < motion.x[-1] else 0.0
+        return (float(ua(np.clip(t, motion.x[0], motion.x[-1])))
+                if motion.x[0] < t < motion.x[-1] else 0.0)
 
     def f_req(t, z, outside):
         return m * udd(t) + _force(model, z, 0.0, np.sign(z), 0.0, outside)
@@ -57,7 +58,8 @@ def simulate_reference(model: IsolatorModel, motion, t_out: np.ndarray, rtol: fl
             over = np.abs(need + _force(model, z, 0.0, np.sign(z), 0.0, outside)) > fb
             hit = int(np.argmax(over)) if over.any() else None
             t_next = t_end if hit is None else brentq(
-                lambda s: abs(f_req(s, z, outside)) - fb, grid[hit - 1], grid[hit], xtol=1e-14)
+                lambda s, z=z, outside=outside: abs(f_req(s, z, outside)) - fb,
+                grid[hit - 1], grid[hit], xtol=1e-14)
             sel = (t_out >= t) & (t_out <= t_next)
             z_out[sel], zd_out[sel] = z, 0.0
             if hit is None:
@@ -72,7 +74,7 @@ def simulate_reference(model: IsolatorModel, motion, t_out: np.ndarray, rtol: fl
             stuck, zd = True, 0.0  # appendix A: |ż| ≤ ε with the force within breakaway
             continue
 
-        def rhs(s, y):
+        def rhs(s, y, sz=sz, szd=szd, outside=outside):
             return [y[1], -_force(model, y[0], y[1], sz, szd, outside) / m - udd(s)]
 
         events = []
@@ -81,13 +83,20 @@ def simulate_reference(model: IsolatorModel, motion, t_out: np.ndarray, rtol: fl
             band.terminal, band.direction = True, -1
             events.append(band)
         if armed:
-            stop = lambda s, y: szd * y[1] - eps
+            def stop(s, y, szd=szd):
+                return szd * y[1] - eps
+
             stop.terminal, stop.direction = True, -1
             events.append(stop)
         elif fb > 0:  # slow and slipping: stick when the force falls within breakaway,
-            grip = lambda s, y: fb - abs(f_req(s, y[0], outside))
+            def grip(s, y, outside=outside):
+                return fb - abs(f_req(s, y[0], outside))
+
             grip.terminal, grip.direction = True, 1
-            leave = lambda s, y: eps - abs(y[1])  # or re-arm on leaving ε
+
+            def leave(s, y):  # or re-arm on leaving ε
+                return eps - abs(y[1])
+
             leave.terminal, leave.direction = True, -1
             events += [grip, leave]
         t_start = t

@@ -84,7 +84,8 @@ def _cycloidal(tau: float) -> tuple[float, float, float]:
 
 def _half_cosine(tau: float) -> tuple[float, float, float]:
     p = math.pi
-    return ((1.0 - math.cos(p * tau)) / 2.0, p * math.sin(p * tau) / 2.0, p * p * math.cos(p * tau) / 2.0)
+    return ((1.0 - math.cos(p * tau)) / 2.0, p * math.sin(p * tau) / 2.0,
+            p * p * math.cos(p * tau) / 2.0)
 
 
 def _min_jerk(tau: float) -> tuple[float, float, float]:
@@ -263,7 +264,8 @@ class Plant:
         def g(t, y):
             z, zd, _, T, w = y
             _, _, udd = self.table(t, y)
-            return max(abs(zd) - k["eps"], abs(m * udd + self.force(z, 0.0, inside, T, w)) - k["F_b"])
+            return max(abs(zd) - k["eps"],
+                       abs(m * udd + self.force(z, 0.0, inside, T, w)) - k["F_b"])
 
         g.terminal = True
         g.direction = -1.0
@@ -315,7 +317,8 @@ class Trajectory:
         return out
 
 
-def simulate(plant: Plant, t_end: float, max_events: int = 20000, dwell: float = 5e-4) -> Trajectory:
+def simulate(plant: Plant, t_end: float, max_events: int = 20000,
+             dwell: float = 5e-4) -> Trajectory:
     """Integrate the hybrid model from rest to t_end, restarting at every event.
 
     After a breakaway the mass slides for at least ``dwell`` seconds before it may stick
@@ -352,7 +355,8 @@ def simulate(plant: Plant, t_end: float, max_events: int = 20000, dwell: float =
             t_stop = min(t_stop, no_stick_until)
             fun, events = plant.rhs_slip(inside), [plant.ev_deadband(inside)]
         else:
-            fun, events = plant.rhs_slip(inside), [plant.ev_deadband(inside), plant.ev_stick(inside)]
+            fun = plant.rhs_slip(inside)
+            events = [plant.ev_deadband(inside), plant.ev_stick(inside)]
         sol = solve_ivp(fun, (t, t_stop), y, events=events, **opts)
         if sol.status == -1:
             raise RuntimeError(f"integration failed at t={t:.6f}: {sol.message}")
@@ -485,7 +489,8 @@ def _draw_effect(name: str, rng: np.random.Generator, mag: float, ref: dict, k: 
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
 
 
-def make_campaign(seed: int, effects: Sequence[str] = (), magnitude: float | None = None) -> Campaign:
+def make_campaign(seed: int, effects: Sequence[str] = (),
+                  magnitude: float | None = None) -> Campaign:
     """Draw one campaign (runs A, B, C) from numpy.random.default_rng(seed)."""
     rng = np.random.default_rng(seed)
     # base draws first, in a fixed order: a seed gives the same plant whatever the effects

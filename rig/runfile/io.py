@@ -62,7 +62,8 @@ def hold_writer_lock(path: Path) -> int:
             fcntl.fcntl(fd, fcntl.F_OFD_SETLK, request)
         except OSError as exc:
             os.close(fd)
-            raise DataError(f"{path}: another writer holds this run file ({one_line(exc)})")
+            raise DataError(
+                f"{path}: another writer holds this run file ({one_line(exc)})") from None
     return fd
 
 
@@ -95,7 +96,7 @@ def open_for_read(path: Path, *, locking: bool = True) -> tuple[h5py.File, bool]
     """
     if not path.is_file():
         raise DataError(f"{path}: no such run file")
-    for attempt in range(_LOCK_RETRIES):
+    for _ in range(_LOCK_RETRIES):
         try:
             return h5py.File(path, "r", **_lock_kw(locking)), False
         except BlockingIOError:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Callable, Iterable, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import h5py
@@ -96,7 +96,7 @@ _CONVERTERS = {"raw/can": _can_block, "raw/serial": _serial_block, "gaps": _rows
 
 def utc_now() -> str:
     """Wall-clock time now, ISO 8601 UTC."""
-    return datetime.now(timezone.utc).isoformat()
+    return datetime.now(UTC).isoformat()
 
 
 def create_layout(

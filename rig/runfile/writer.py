@@ -19,7 +19,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -93,7 +93,7 @@ class RunWriter:
         specs = tuple(standard_channels() if channels is None else channels)
         self._reserve = refuse_unless_writable(self.path, reserve_size(specs))
         self.t0 = clock()
-        start = start or datetime.now(timezone.utc)  # host time 0 = this wall time
+        start = start or datetime.now(UTC)  # host time 0 = this wall time
         try:
             self._file, tables, self._counter_ds = create_layout(
                 self.path, info, specs, sources, start
@@ -330,7 +330,8 @@ class RunWriter:
             with reopen_for_status(self.path) as f:
                 final_status_attrs(f, exit_status, reason, self._dropped == 0, samples)
         except (OSError, RuntimeError) as exc:
-            raise DataError(f"{self.path}: could not write the final status: {one_line(exc)}")
+            raise DataError(
+                f"{self.path}: could not write the final status: {one_line(exc)}") from exc
         finally:
             for table in self._tables.values():
                 table.ds = None

@@ -23,7 +23,6 @@ import enum
 import functools
 import os
 from dataclasses import dataclass
-from typing import Union
 
 import can
 import cantools
@@ -141,7 +140,7 @@ class RigCommand:
     start_sample: int = 0  # START: the full setpoint sample index to begin at
 
 
-RigMessage = Union[Setpoint, Feedback, TableSample, MassSample, Heartbeat, RigCommand]
+RigMessage = Setpoint | Feedback | TableSample | MassSample | Heartbeat | RigCommand
 
 
 @functools.cache
