@@ -12,11 +12,10 @@ from analysis.force_driven.cli import add_force_arguments, is_force_driven, run_
 from analysis.identify.foreign import parse_channels
 from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import identify
-from analysis.identify.report_format import fit_json, format_fit
+from analysis.identify.report_format import format_fit
 from analysis.loop import close_loop
-from analysis.loop.report import format_loop, loop_json, loop_model_json, with_loop
+from analysis.loop.report import fit_document, format_loop
 from analysis.loop.runs import loop_runs
-from analysis.model.model_json import MODEL_KEY
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import LENGTH_UNIT, add_units_argument
 from rig.errors import DataError
@@ -74,10 +73,7 @@ def run_fit(args: argparse.Namespace) -> int:
         print()
         print(format_loop(loop, "us"))
     if args.json:
-        doc = fit_json(fit)
-        if loop is not None:
-            doc = with_loop(doc, loop_json(loop))
-            doc[MODEL_KEY] = loop_model_json(loop)
+        doc = fit_document(fit, loop)
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(doc, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")

@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from analysis.identify.output_error import Z95
+from analysis.identify.report_format import fit_json
 from analysis.loop.refit import Fit
 from analysis.loop.result import LoopResult, Step
-from analysis.model.model_json import covariance_from, model_json
+from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
 from rig.units import from_si, us_unit
+
+if TYPE_CHECKING:  # the pipeline's type only (as in `runs`)
+    from analysis.identify.pipeline import IsolatorFit
 
 # the model's own term coefficients are reported with the loop's effects
 UNIT_OF_SENSOR = {"sensor_gain": "1", "sensor_delay": "s"}
@@ -142,6 +147,16 @@ def loop_figures(result: LoopResult, out: Path, units: str = "si") -> list[Path]
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def fit_document(fit: IsolatorFit, loop: LoopResult | None) -> dict:
+    """The document `analysis fit --json` writes (and a lot keeps per unit): the fit's
+    JSON, with the loop's keys and the closed-loop model where the loop ran."""
+    doc = fit_json(fit)
+    if loop is not None:
+        doc = with_loop(doc, loop_json(loop))
+        doc[MODEL_KEY] = loop_model_json(loop)
+    return doc
 
 
 def loop_model_json(loop: LoopResult) -> dict:

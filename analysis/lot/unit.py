@@ -3,7 +3,7 @@
 
 `fit_unit` is the task a lot sends to a Dask worker: a plain function of picklable
 arguments that returns a JSON-serialisable `UnitResult`. It runs `analysis fit`'s own
-steps (`load_runs` → `identify` → `close_loop` → `fit_json` with the loop's keys), so a
+steps (`load_runs` → `identify` → `close_loop` → `fit_document`), so a
 unit fitted in a lot and the same files fitted with `analysis fit --json` give the same
 document. A unit whose files are bad or whose fit fails (`DataError`, `ValueError`)
 comes back `failed` with its one-line reason instead of raising: one unit cannot sink
@@ -23,11 +23,9 @@ from pathlib import Path
 
 from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import REFINED, identify
-from analysis.identify.report_format import fit_json
 from analysis.loop import close_loop
-from analysis.loop.report import loop_json, loop_model_json, with_loop
+from analysis.loop.report import fit_document
 from analysis.loop.runs import loop_runs
-from analysis.model.model_json import MODEL_KEY
 from rig.errors import DataError
 
 RUN_SUFFIXES = (".h5", ".hdf5", ".csv")  # what `analysis fit` reads: run files and CSV
@@ -171,9 +169,7 @@ def fit_unit(spec: UnitSpec, options: FitOptions) -> UnitResult:
         loop = close_loop(fit.model, loop_runs(fit))
     except (DataError, ValueError) as e:  # the unit's data, not the lot's: one line
         return failed(spec, one_line(e, spec.directory), time.perf_counter() - start)
-    doc = with_loop(fit_json(fit), loop_json(loop))
-    doc[MODEL_KEY] = loop_model_json(loop)
-    return from_fit(spec, doc, loaded.warnings, time.perf_counter() - start)
+    return from_fit(spec, fit_document(fit, loop), loaded.warnings, time.perf_counter() - start)
 
 
 def failed(spec: UnitSpec, reason: str, seconds: float = 0.0) -> UnitResult:
