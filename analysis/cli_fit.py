@@ -73,7 +73,7 @@ def run_fit(args: argparse.Namespace) -> int:
         print()
         print(format_loop(loop, "us"))
     if args.json:
-        doc = fit_document(fit, loop)
+        doc = fit_document(fit, loop).to_json_dict()  # analysis/fit_schema.py
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(doc, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")

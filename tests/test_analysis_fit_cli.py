@@ -183,7 +183,7 @@ def test_the_table_motion_is_fitted_to_the_table_sensors_own_samples(tmp_path: P
     motion is fitted to the samples as taken: the noise read is the sensor's, the fit
     a step pulse at the noise (on u interpolated: σ read 7–12 % low over five draws,
     and a rig campaign's run B fell back to the smoothing spline for it)."""
-    from analysis.identify.pipeline import prepare
+    from analysis.identify.prepare import prepare
     from analysis.simulate import simulate
     from rig.profile import load_profile
 

@@ -10,7 +10,7 @@ true model fitted its own data at 1286 × the noise.
 
 import numpy as np
 
-from analysis.identify.table_motion import ramps_motion
+from analysis.identify.step_pulse import ramps_motion
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.differentiate import METHODS, differentiate, estimate_noise
+from analysis.signals.differentiate import METHODS, differentiate, estimate_noise
 from rig.profile import load_profile
 
 SIGMA = 2.54e-5

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from analysis.identify.pipeline import MeasuredRun, identify
+from analysis.identify.pipeline import identify
+from analysis.identify.prepare import MeasuredRun
 from analysis.identify.report_format import SHOWN, fit_json
 from analysis.loop import close_loop
 from analysis.loop.report import loop_json

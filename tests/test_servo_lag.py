@@ -14,15 +14,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from analysis.identify import input_error
-from analysis.identify.output_error import noise_sigma
-from analysis.identify.table_motion import (
-    estimate_table_motion,
-    lag_response,
-    params_ramps,
-    step_pulse_value,
-    table_noise,
-    tied_ramps,
-)
+from analysis.identify.run_data import noise_sigma
+from analysis.identify.step_pulse import lag_response, params_ramps, step_pulse_value, tied_ramps
+from analysis.identify.table_motion import estimate_table_motion, table_noise
 from rig.profile import load_profile
 
 SIGMA = 2.54e-5  # m, 0.001 in: the rig's sensors

@@ -148,7 +148,7 @@ def test_the_error_does_not_jump_with_the_ramps_phase_on_the_step_grid(average_m
     location: when it did not (ε − |ż| exactly 0 does not arm an event), x was 11–12 µm
     off its converged solution at two phases in 40, 0.04–1.4 µm at the others, and the
     breakaway force's cost had 28 χ² dips at one value in ten."""
-    from analysis.identify.table_motion import step_pulse_motion
+    from analysis.identify.step_pulse import step_pulse_motion
 
     t = 1e-3 * np.arange(3601)
     step = 5.5 * 0.0254
@@ -167,7 +167,7 @@ def test_a_ramp_shorter_than_a_step_is_not_stepped_over(average_model):
     sample (0.16 mm in 0.72 ms, ±1800 m/s²). One 1 ms RK4 step across it samples that
     acceleration at one stage and kicked ż by 0.9 m/s; stepped break to break, the
     kernel agrees with scipy's DOP853 as on any other profile."""
-    from analysis.identify.table_motion import step_pulse_motion
+    from analysis.identify.step_pulse import step_pulse_motion
     from analysis.simulate.reference import simulate_reference
 
     t = 1e-3 * np.arange(3001)

@@ -30,6 +30,7 @@ from rig.wire.can_messages import CommandKind, Feedback, NodeState, RigCommand
 _ERR = {"20261123T141108_A": (21.68469477914084, 15.907012235883517),
         "20261123T141112_B": (38.107778181478835, 35.11047692074091)}
 FIT_DOC: dict = {
+    "schema_version": 1,
     "parameters": {
         "m": {"value": 2721.55422, "std": None, "unit": "kg", "held": True},
         "delta": {"value": 0.01955345793262456, "std": None, "unit": "m", "held": False},

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from analysis.identify.pipeline import LINEAR, _stack, prepare, start_model
+from analysis.identify.pipeline import LINEAR, _stack, start_model
+from analysis.identify.prepare import prepare
 from analysis.identify.synthetic import synthetic_runs
 from analysis.identify.varpro import Gram, _cost
 from analysis.model.report_constants import report_model

@@ -162,7 +162,7 @@ def ljung_box_p(residual: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class LoopStep:
+class AddedEffect:
     """One effect added: its estimate, the evidence, and the force errors around it."""
 
     added: str
@@ -183,7 +183,7 @@ class ForceLoop:
 
     base: TermFit
     final: TermFit
-    steps: tuple[LoopStep, ...]
+    steps: tuple[AddedEffect, ...]
     refused: tuple[dict[str, object], ...]
     heldout: str  # what the validation used
     heldout_measure: str  # relative force error, or simulation RMS error (m)
@@ -299,8 +299,8 @@ def close_force_loop(records: Sequence[Prepared], base: Sequence[str], mass: flo
                 continue
             t = term(cand)
             value, std = trial.value(cand), float(trial.std[trial.names.index(cand)])
-            steps.append(LoopStep(cand, t.parameter, value, std, t.unit, evidence,
-                                  fit.relative_error, trial.relative_error, held_err, err))
+            steps.append(AddedEffect(cand, t.parameter, value, std, t.unit, evidence,
+                                     fit.relative_error, trial.relative_error, held_err, err))
             added, fit, held_ss, held_err = cand, trial, ss, err
             cut = evidence["rss_drop"]
             refused.extend({"round": len(steps), "candidate": c,

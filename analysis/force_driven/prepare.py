@@ -124,7 +124,7 @@ def choose(record: ForceRecord, cutoff_hz: float | None, factor: int | None,
            method: str) -> Settings:
     """Fill in what was not given.
 
-    The cutoff defaults to the one analysis.differentiate chooses for the position
+    The cutoff defaults to the one analysis.signals.differentiate chooses for the position
     (Mallows' Cp). The decimation keeps 0.4 × the cutoff, the EMPS recipe's ratio
     (Butterworth at 5 × the 20 Hz bandwidth, decimated to keep 2 × it: 10 at 1 kHz).
     """
@@ -132,7 +132,7 @@ def choose(record: ForceRecord, cutoff_hz: float | None, factor: int | None,
         raise DataError(f"unknown derivative method {method!r} (known: {', '.join(METHODS)})")
     fs = 1.0 / record.dt
     if cutoff_hz is None:
-        from analysis.differentiate import differentiate
+        from analysis.signals.differentiate import differentiate
 
         cutoff_hz = float(differentiate(record.position, record.dt, "butter").settings["cutoff_hz"])
     if not (np.isfinite(cutoff_hz) and 0 < cutoff_hz < fs / 2):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.force_driven.identify import ForceLoop, LoopStep, TermFit
+from analysis.force_driven.identify import AddedEffect, ForceLoop, TermFit
 from analysis.force_driven.model import MASS, term
 from analysis.force_driven.prepare import Prepared
 
@@ -33,7 +33,7 @@ def model_json(fit: TermFit) -> list[dict[str, object]]:
              "explanation": term(n).explanation} for n in names]
 
 
-def _step_json(s: LoopStep) -> dict[str, object]:
+def _step_json(s: AddedEffect) -> dict[str, object]:
     return {"added": s.added, "parameter": s.parameter,
             "value": {"value": s.value, "std": s.std, "unit": s.unit},
             "evidence": s.evidence, "error_before": s.error_before,

@@ -42,14 +42,12 @@ from dataclasses import replace
 import numpy as np
 from scipy.interpolate import PPoly
 
-from analysis.identify.output_error import (
-    OutputErrorFit,
-    RunData,
-    gram_inverse,
-    scaled_residual,
-    with_log_covariance,
-)
-from analysis.identify.table_motion import TableMotion, step_pulse_motion
+from analysis.identify.covariance import gram_inverse
+from analysis.identify.output_error import OutputErrorFit, with_log_covariance
+from analysis.identify.residuals import scaled_residual
+from analysis.identify.run_data import RunData
+from analysis.identify.step_pulse import step_pulse_motion
+from analysis.identify.table_motion import TableMotion
 
 SKEW_STEP = 2e-5  # s: finite-difference step, far above rounding, linear at 0.1 ms scale
 SKEW_SCALE = 1e-4  # s: the column's unit, so that it is scaled like the constants' columns

@@ -28,7 +28,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from analysis.identify.output_error import RunData, residual_and_jacobian
+from analysis.identify.residuals import residual_and_jacobian
+from analysis.identify.run_data import RunData
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import simulate
 from rig.profile import Profile, load_profile

@@ -20,8 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from analysis.identify.output_error import initial_offset
-from analysis.identify.pipeline import IsolatorFit, PreparedRun
+from analysis.identify.pipeline import IsolatorFit
+from analysis.identify.prepare import PreparedRun
+from analysis.identify.run_data import initial_offset
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import simulate
 from rig.units import POUND_FORCE, from_si

@@ -27,22 +27,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from analysis.identify.output_error import (
-    OutputErrorFit,
-    RunData,
-    determined_gram_inverse,
-    gram_inverse,
-    with_log_covariance,
-)
-from analysis.identify.table_motion import (
-    TableMotion,
+from analysis.identify.covariance import determined_gram_inverse, gram_inverse
+from analysis.identify.output_error import OutputErrorFit, with_log_covariance
+from analysis.identify.run_data import RunData
+from analysis.identify.step_pulse import (
     params_ramps,
-    refine_step_pulse,
     step_pulse_motion,
     step_pulse_params,
     step_pulse_value,
     tied_ramps,
 )
+from analysis.identify.step_pulse_fit import refine_step_pulse
+from analysis.identify.table_motion import TableMotion
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import RunSetup, simulate_runs
 

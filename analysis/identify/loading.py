@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.identify.foreign import FOREIGN_SUFFIXES, read_foreign
-from analysis.identify.pipeline import MeasuredRun
+from analysis.identify.prepare import MeasuredRun
 from rig.cli_support import OLD_UNIT_WORDS
 from rig.config import MAX_STROKE, parse_config
 from rig.errors import ConfigError, DataError

@@ -22,32 +22,23 @@ sensor's noise enters neither the regressors nor the simulated response.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.differentiate import differentiate
-from analysis.identify.channel_skew import shifted_table, skew_step, with_skew_share
+from analysis.identify.channel_skew import skew_step, with_skew_share
+from analysis.identify.channel_skew_fit import fit_skew
 from analysis.identify.equation_error import LinearFit, fit_coefficients
-from analysis.identify.input_error import refine_table, with_input_uncertainty
-from analysis.identify.output_error import (
-    HOLD_LOG_STD,
-    OutputErrorFit,
-    RunData,
-    correlated_noise_factor,
-    determined,
-    initial_offset,
-    one_step,
-    refine,
-    slice_residuals,
-)
+from analysis.identify.held_constants import NONSMOOTH, Progress, hold_loose, settle_nonsmooth
+from analysis.identify.input_error import with_input_uncertainty
+from analysis.identify.output_error import OutputErrorFit, determined, one_step, refine
+from analysis.identify.prepare import MeasuredRun, PreparedRun, prepare
+from analysis.identify.run_data import RunData, initial_offset
 from analysis.identify.run_errors import RunError, compare
-from analysis.identify.table_motion import TableMotion, estimate_table_motion
 from analysis.identify.varpro import Data, Projection, project
 from analysis.model.isolator import IsolatorModel
 from analysis.model.report_constants import report_model
-from analysis.rest import active_mask
 from analysis.simulate import simulate
 
 LINEAR = ("k1", "k2", "c1", "c2")
@@ -57,73 +48,7 @@ FLAG_RELATIVE = 0.25  # …and by this fraction of it: A and B differ by up to 2
 CONSISTENT = 2.0  # residual / noise under the joint model below which a run starts there
 PER_RUN_GRID = 7  # coarser than the joint search: each run only needs a start
 MIN_START = {"delta": 1e-4, "F_break": 1.0, "epsilon": 1e-4}  # SI: log coordinates need > 0
-# Thresholds: the breakaway force switches the mass between stuck and sliding, so a
-# finite-difference column of it counts whether one stick/slip event moved by a sample
-# (log std 0.001 on one draw, 1.4 on the next: measured on rig campaigns). It is judged
-# instead on decade-wide steps of the cost, fitted last and freed only when the runs
-# prefer another value by more than SIGNIFICANT_CHI2.
-NONSMOOTH = ("F_break",)
-SLICE_FACTORS = (0.1, 0.3, 1.0, 3.0, 10.0)  # of the held value: the search's own range
-SIGNIFICANT_CHI2 = 10.83  # χ²₁ at 0.1 %: a difference no noise draw makes by chance
-CONSISTENT_CHI2 = 3.84  # χ²₁ at 5 %: values the runs cannot tell from the best
-
-Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class MeasuredRun:
-    """One base-excited run: table u and mass x absolute displacement; SI."""
-
-    name: str
-    t: np.ndarray  # s, uniform
-    u: np.ndarray  # m
-    x: np.ndarray  # m
-    mass: float  # kg
-    # s: the largest time offset between the u and x channels the acquisition allows
-    # (`channel_skew`); 0: the channels are taken as simultaneous
-    skew_limit: float = 0.0
-    # (s, m): the table sensor's own samples where it has its own clock (a run file);
-    # None: u at t is what the sensor took
-    table_samples: tuple[np.ndarray, np.ndarray] | None = None
-
-    def table_channel(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t s, u m) as the table sensor took them: what its motion is fitted to."""
-        return self.table_samples if self.table_samples is not None else (self.t, self.u)
-
-
-@dataclass(frozen=True)
-class PreparedRun:
-    """A run made ready for both stages: derivatives, rest dropped, the input estimated."""
-
-    run: MeasuredRun
-    z: np.ndarray  # m, smoothed
-    zd: np.ndarray  # m/s
-    xdd: np.ndarray  # m/s²
-    active: np.ndarray  # bool: samples kept for equation error (rest dropped)
-    oe: RunData
-    table: TableMotion
-    sigma_x: float  # m, the mass sensor's noise
-    method: str  # differentiation method used
-    settings: dict = field(default_factory=dict)
-
-
-def prepare(run: MeasuredRun, method: str = "auto") -> PreparedRun:
-    """Differentiate x, estimate u(t) and u̇(t), drop rest.
-
-    The table motion is fitted to the table sensor's own samples: its noise is white
-    there, where u interpolated onto x's instants has neighbours correlated by the
-    clocks' phase, which drifts through a run (`analysis.identify.loading`).
-    """
-    dt = float(run.t[1] - run.t[0])
-    dx = differentiate(run.x, dt, method=method)
-    tu, uu = run.table_channel()
-    table = refine_table(tu, uu, estimate_table_motion(tu, uu))
-    u, ud = table.motion(run.t), table.motion.derivative()(run.t)
-    z, zd = dx.x - u, dx.v - ud
-    active = active_mask(zd, dt, dx.noise_v)
-    oe = RunData(run.name, run.t, table.motion, run.x, dx.noise)
-    return PreparedRun(run=run, z=z, zd=zd, xdd=dx.a, active=active, oe=oe, table=table,
-                       sigma_x=dx.noise, method=dx.method, settings=dict(dx.settings))
+ABSENT_START = 1e-6  # of k1 (c1): a k2 (c2) equation error put at or below zero
 
 
 @dataclass(frozen=True)
@@ -246,7 +171,7 @@ def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Pro
     start = _positive_start(start)
     if free is None:
         fit, held = _smooth_fit(start, runs)
-        fit, held = _settle_nonsmooth(fit, runs, held, progress)
+        fit, held = settle_nonsmooth(fit, runs, held, progress)
     else:  # given (a fit on more data already split them): skip the start's Jacobian
         held = tuple(n for n in REFINED if n not in free)
         # from a nearby optimum one checked Gauss–Newton step is the fit
@@ -254,7 +179,7 @@ def _refine(start: IsolatorModel, prepared: Sequence[PreparedRun], progress: Pro
         if fit is None:
             fit = refine(start, runs, free, at_start=at_start)
             sensitivity = None  # iterated away from the start: its input sensitivity too
-    fit, held = _hold_loose(fit, start, runs, held, progress)
+    fit, held = hold_loose(fit, start, runs, held, progress)
     return with_input_uncertainty(fit, runs, [p.table for p in prepared], sensitivity)
 
 
@@ -284,10 +209,10 @@ def _joint(proj: Projection, model0: IsolatorModel, data: Data,
     skew = None
     if skew_limit > 0:
         progress("output error: the table channel's time offset")
-        fit, prepared, offset, last = _fit_skew(fit, tuple(prepared), skew_limit)
+        fit, prepared, offset, last = fit_skew(fit, tuple(prepared), skew_limit)
         runs = [p.oe for p in prepared]
-    fit, held = _settle_nonsmooth(fit, runs, held, progress)
-    fit, held = _hold_loose(fit, start, runs, held, progress)
+    fit, held = settle_nonsmooth(fit, runs, held, progress)
+    fit, held = hold_loose(fit, start, runs, held, progress)
     fit = with_input_uncertainty(fit, runs, [p.table for p in prepared])
     if skew_limit > 0:
         # the last step's J_s holds where the constants have not moved since (only the
@@ -340,46 +265,6 @@ def _alpha_starts(proj: Projection, model0: IsolatorModel, data: Data):
                       free=LINEAR).model
 
 
-SKEW_ITERATIONS = 4
-DRIFT_LIMIT = 1e-4  # the skew's rate within a run: two device clocks' fits, 100 ppm apart
-SKEW_CONVERGED = 0.25  # standard errors: a further step smaller than this is not taken
-
-
-def _fit_skew(fit: OutputErrorFit, prepared: tuple[PreparedRun, ...], limit: float):
-    """Gauss–Newton on the runs' skews with the constants (`channel_skew.skew_step`),
-    each step's shifts applied to the runs and the constants refitted, within ±limit.
-
-    Returns the fit, the shifted runs, the offsets (s) then rates and, when the last step
-    was computed at the returned fit, (its Jacobian, that step) for reuse; else None.
-    """
-    n = len(prepared)
-    offset, last = np.zeros(2 * n), None
-    bound = np.repeat([limit, DRIFT_LIMIT], n)
-    for _ in range(SKEW_ITERATIONS):
-        last = (fit.jacobian, skew_step(fit, [p.oe for p in prepared]))
-        step, cov, _ = last[1]
-        new = np.clip(offset + step, -bound, bound)
-        if np.all(np.abs(new - offset) <= SKEW_CONVERGED * np.sqrt(np.diag(cov))):
-            break
-        d = new - offset
-        prepared = tuple(shift_input(p, float(d[k]), float(d[n + k]))
-                         for k, p in enumerate(prepared))
-        offset = new
-        fit, last = refine(fit.model, [p.oe for p in prepared], fit.names), None
-    return fit, prepared, offset, last
-
-
-def shift_input(p: PreparedRun, skew: float, drift: float = 0.0) -> PreparedRun:
-    """The prepared run with its table motion skew + drift (t − t_c) seconds later
-    (`channel_skew.skew_origin`; z, ż follow)."""
-    t = p.run.t
-    table = shifted_table(p.table, t, skew, drift)
-    u, ud = table.motion(t), table.motion.derivative()(t)
-    x = p.z + p.table.motion(t)
-    xd = p.zd + p.table.motion.derivative()(t)
-    return replace(p, table=table, z=x - u, zd=xd - ud, oe=replace(p.oe, motion=table.motion))
-
-
 def _smooth_fit(start: IsolatorModel, runs: Sequence[RunData]
                 ) -> tuple[OutputErrorFit, tuple[str, ...]]:
     """Output error over the smooth constants the runs determine at the start."""
@@ -388,72 +273,20 @@ def _smooth_fit(start: IsolatorModel, runs: Sequence[RunData]
     return refine(start, runs, free, at_start=at_start), held
 
 
-def _settle_nonsmooth(fit: OutputErrorFit, runs: Sequence[RunData], held: tuple[str, ...],
-                      progress: Progress) -> tuple[OutputErrorFit, tuple[str, ...]]:
-    for name in NONSMOOTH:
-        fit, freed = _nonsmooth(fit, runs, name, progress)
-        held = held if freed else held + (name,)
-    return fit, held
-
-
-def _hold_loose(fit: OutputErrorFit, start: IsolatorModel, runs: Sequence[RunData],
-                held: tuple[str, ...], progress: Progress
-                ) -> tuple[OutputErrorFit, tuple[str, ...]]:
-    """A constant the fit leaves undetermined (std beyond HOLD_LOG_STD) back at its start
-    value and held; the rest refitted."""
-    loose = [n for n, v, s in zip(fit.names, fit.values, fit.std) if s > HOLD_LOG_STD * v]
-    if loose:
-        held = held + tuple(loose)
-        back = {n: start.parameters()[n] for n in loose}
-        fit = replace(refine(fit.model.with_parameters(**back), runs,
-                             [n for n in fit.names if n not in loose]),
-                      consistent=fit.consistent)
-    if held:
-        progress(f"  held (not determined by these runs): {', '.join(held)}")
-    return fit, held
-
-
-def _nonsmooth(fit: OutputErrorFit, runs: Sequence[RunData], name: str, progress: Progress
-               ) -> tuple[OutputErrorFit, bool]:
-    """`fit` with constant `name` freed if the runs determine it, else held; and which.
-
-    The cost is sliced at SLICE_FACTORS of the held value with every other constant
-    at the fit. Freed only when a value there beats the held one by SIGNIFICANT_CHI2,
-    scaled by how much the residual's own correlation moves a cost difference along
-    that change (`correlated_noise_factor`: a model µm off the truth moves it many times
-    more than white noise), and the fit from it, with `name` free, keeps that gain and
-    leaves every constant within HOLD_LOG_STD: a freed breakaway force that ends in a
-    valley above the held fit's cost (one where a 10× force trades off against α) is
-    refused. Held, the range of values within CONSISTENT_CHI2 of the best is kept as
-    `fit.consistent[name]`.
-    """
-    held = fit.model.parameters()[name]
-    values = held * np.asarray(SLICE_FACTORS)
-    res = slice_residuals(fit.model, runs, name, values)
-    chi2 = np.sum(res**2, axis=1)
-    i0 = SLICE_FACTORS.index(1.0)
-    base = float(chi2[i0])
-    best = int(np.argmin(chi2))
-    kappa = correlated_noise_factor(res[i0], res[best] - res[i0], [r.t.size for r in runs])
-    if base - chi2[best] > SIGNIFICANT_CHI2 * kappa:
-        progress(f"  {name}: the runs prefer {values[best]:.4g} (chi2 {base - chi2[best]:.0f} "
-                 f"lower, correlated noise x{kappa:.2g}): freed")
-        names = fit.names + (name,)
-        free = refine(fit.model.with_parameters(**{name: float(values[best])}), runs, names)
-        cut = base - float(free.residual @ free.residual)
-        loose = free.std > HOLD_LOG_STD * free.values
-        if cut > SIGNIFICANT_CHI2 * kappa and not loose.any():
-            return free, True
-        progress(f"  {name}: freed, the fit gains chi2 {cut:.0f} but leaves "
-                 f"{', '.join(np.array(names)[loose]) or 'nothing'} undetermined: held")
-    near = values[chi2 <= chi2.min() + CONSISTENT_CHI2 * kappa]
-    return replace(fit, consistent={**fit.consistent,
-                                    name: (float(near.min()), float(near.max()))}), False
-
-
 def _positive_start(model: IsolatorModel) -> IsolatorModel:
+    """`model` with every constant output error fits in log coordinates above zero.
+
+    Equation error can leave a nonlinear coefficient at zero or just below it where
+    the runs show no such term (a dry-friction campaign: k2 = −9e-7 N/m beside k1 at
+    6.7e4 N/m); its log was NaN and the first output-error fit diverged. It starts at
+    ABSENT_START of its linear partner instead, where the fit holds it as undetermined.
+    """
     p = model.parameters()
-    return model.with_parameters(**{n: max(p[n], lo) for n, lo in MIN_START.items()})
+    lifted = {n: max(p[n], lo) for n, lo in MIN_START.items()}
+    for coef, partner in (("k2", "k1"), ("c2", "c1")):
+        if not p[coef] > 0 and p[partner] > 0:
+            lifted[coef] = ABSENT_START * p[partner]
+    return model.with_parameters(**lifted)
 
 
 def run_error(model: IsolatorModel, p: PreparedRun) -> RunError:
@@ -489,4 +322,4 @@ def flag_runs(per_run: dict[str, OutputErrorFit]) -> dict[str, list[str]]:
     return flagged
 
 
-__all__ = ["IsolatorFit", "MeasuredRun", "PreparedRun", "RunError", "identify", "prepare"]
+__all__ = ["IsolatorFit", "RunError", "identify"]

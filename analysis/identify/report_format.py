@@ -1,12 +1,23 @@
-"""The identified isolator as text (SI or the report's units) and as JSON."""
+"""The identified isolator as text (SI or the report's units) and as the fit document's
+schema (analysis/fit_schema.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from analysis.fit_schema import (
+    AppendixA,
+    ChannelSkew,
+    Estimate,
+    FitResult,
+    ModelTerm,
+    Preparation,
+    RunError,
+    VariableProjection,
+)
 from analysis.identify.output_error import Z95
 from analysis.identify.pipeline import IsolatorFit
-from analysis.model.model_json import MODEL_KEY, model_json
+from analysis.model.model_json import model_json
 from analysis.model.terms import kind
 from rig.units import from_si, us_unit
 
@@ -98,55 +109,51 @@ def format_fit(fit: IsolatorFit) -> str:
                         format_errors(fit, "us")])
 
 
-def _entry(value: float, std: float | None, unit: str, held: bool = False) -> dict:
-    out: dict = {"value": float(value), "std": None if std is None else float(std),
-                 "unit": unit}
-    if std is not None:
-        out["ci95"] = [float(value - Z95 * std), float(value + Z95 * std)]
-    if held:
-        out["held"] = True
-    return out
+def _entry(value: float, std: float | None, unit: str, held: bool = False) -> Estimate:
+    ci95 = None if std is None else (float(value - Z95 * std), float(value + Z95 * std))
+    return Estimate(float(value), None if std is None else float(std), unit, ci95,
+                    True if held else None)
+
+
+def _rows(a: np.ndarray) -> tuple[tuple[float, ...], ...]:
+    return tuple(map(tuple, a.tolist()))
+
+
+def fit_result(fit: IsolatorFit) -> FitResult:
+    """The fit as the document's schema, without the loop (SI)."""
+    values, stds = fit.values_std()
+    si_units = fit.model.units()
+    a, p = fit.appendix_a, fit.projection
+    estimated = fit.joint if fit.joint is not None else p.fit  # what `values_std` reports
+    return FitResult(
+        parameters={n: _entry(values[n], stds.get(n), si_units[n], n in fit.held)
+                    for n in values},
+        runs={r: {n: _entry(v, s, si_units[n]) for n, v, s in zip(f.names, f.values, f.std)}
+              for r, f in fit.per_run.items()},
+        error={r: RunError(e.z, e.zd, e.xdd, e.force_rms, e.residual_over_noise)
+               for r, e in fit.errors.items()},
+        model=tuple(ModelTerm(t.name, t.kind, kind(t.kind).formula, t.is_gated)
+                    for t in fit.model.terms),
+        # the model to predict with (`sim response --model`)
+        identified_model=model_json(fit.model, estimated.names, estimated.covariance,
+                                    source=fit.estimate),
+        estimate=fit.estimate, held=tuple(fit.held),
+        flagged_runs={r: tuple(names) for r, names in fit.flagged.items()},
+        consistent_range={n: tuple(r) for n, r in
+                          (fit.joint.consistent.items() if fit.joint else ())},
+        channel_skew_s=(None if fit.skew is None else
+                        {r: ChannelSkew(s, e, d, de) for r, (s, e, d, de) in fit.skew.items()}),
+        appendix_a=AppendixA(tuple(a.names), a.as_dict(), dict(zip(a.names, a.std.tolist())),
+                             a.sigma2, _rows(a.A), tuple(a.b.tolist()), _rows(a.covariance),
+                             a.condition, _rows(np.nan_to_num(a.correlation)), a.samples),
+        variable_projection=VariableProjection(p.shapes, p.fit.as_dict(), p.fit.sigma2,
+                                               p.evaluations),
+        preparation={pr.run.name: Preparation(pr.method, pr.settings.get("cutoff_hz"),
+                                              pr.sigma_x, pr.table.sigma, pr.table.method,
+                                              float(pr.active.mean()))
+                     for pr in fit.prepared})
 
 
 def fit_json(fit: IsolatorFit) -> dict:
-    """parameters, runs, error, model, …: the machine-readable result (SI)."""
-    values, stds = fit.values_std()
-    si_units = fit.model.units()
-    params = {n: _entry(values[n], stds.get(n), si_units[n], n in fit.held) for n in values}
-    runs = {r: {n: _entry(v, s, si_units[n]) for n, v, s in zip(f.names, f.values, f.std)}
-            for r, f in fit.per_run.items()}
-    error = {r: {"nrmse_z": e.z, "nrmse_zd": e.zd, "nrmse_xdd": e.xdd,
-                 "force_rms_N": e.force_rms, "residual_over_noise": e.residual_over_noise}
-             for r, e in fit.errors.items()}
-    model = [{"name": t.name, "kind": t.kind, "formula": kind(t.kind).formula,
-              "gated_by_dead_band": t.is_gated} for t in fit.model.terms]
-    a, p = fit.appendix_a, fit.projection
-    estimated = fit.joint if fit.joint is not None else p.fit  # what `values_std` reports
-    return {"parameters": params, "runs": runs, "error": error, "model": model,
-            # the model to predict with (`sim response --model`): analysis/model/model_json.py
-            MODEL_KEY: model_json(fit.model, estimated.names, estimated.covariance,
-                                  source=fit.estimate),
-            "estimate": fit.estimate, "held": list(fit.held), "flagged_runs": fit.flagged,
-            # held constants: the range of values the runs cannot tell apart (SI)
-            "consistent_range": {n: list(r) for n, r in
-                                 (fit.joint.consistent.items() if fit.joint else ())},
-            # run → the table channel's fitted time offset at the table motion's centroid (s),
-            # std, and its rate (s/s), std; null: not fitted
-            "channel_skew_s": (None if fit.skew is None else
-                               {r: {"value": s, "std": e, "rate": d, "rate_std": de}
-                                for r, (s, e, d, de) in fit.skew.items()}),
-            "appendix_a": {"names": list(a.names), "values": a.as_dict(),
-                           "std": dict(zip(a.names, a.std.tolist())), "sigma2_N2": a.sigma2,
-                           "A": a.A.tolist(), "b": a.b.tolist(),
-                           "covariance": a.covariance.tolist(), "condition": a.condition,
-                           "correlation": np.nan_to_num(a.correlation).tolist(),
-                           "samples": a.samples},
-            "variable_projection": {"shapes": p.shapes, "values": p.fit.as_dict(),
-                                    "sigma2_N2": p.fit.sigma2, "evaluations": p.evaluations},
-            "preparation": {pr.run.name: {"differentiation": pr.method,
-                                          "cutoff_hz": pr.settings.get("cutoff_hz"),
-                                          "sigma_x_m": pr.sigma_x,
-                                          "sigma_u_m": pr.table.sigma,
-                                          "table_motion": pr.table.method,
-                                          "moving_fraction": float(pr.active.mean())}
-                            for pr in fit.prepared}}
+    """`fit_result` as the JSON document."""
+    return fit_result(fit).to_json_dict()

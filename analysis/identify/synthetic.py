@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from analysis.identify.pipeline import MeasuredRun
+from analysis.identify.prepare import MeasuredRun
 from analysis.model.isolator import IsolatorModel
 from analysis.simulate import simulate
 from rig.profile import load_profile

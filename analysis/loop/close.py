@@ -12,14 +12,15 @@ Each step:
 3. refit the named candidate by output error from several starts (`candidate_fit`)
    — appendix A's solution with its column, the model identified again by equation
    error with the candidate in it, α, β and δ searched (`reidentify`), and where
-   none reaches the noise, the constants the loop was given — each also with δ and
-   ε free where it stays above the noise; keep it (`judge`) if its parameter is
+   none reaches the noise, the constants the loop was given; past the first, the
+   starts race (a few evaluations each, δ and ε free and held, the best carried
+   on); keep it (`judge`) if its parameter is
    significant (|t| > 3 with the residual's autocorrelation counted), not a
    look-alike of a determined constant (|correlation| < 0.99), cuts the residual by
    at least 2 % and explains at least one sensor-noise RMS of the measured motion
    (less is below what the sensor resolves), also over the model without it
    refitted from the candidate fit's constants (the cut of a lower valley is not
-   the effect's);
+   the effect's), and its lone prediction of no run runs away;
 4. validate the best across runs (`validation`): leave each run out, fit with and
    without the candidate on the others, predict the one left out. A candidate that
    does not predict the held-out runs better is fitting noise and is refused;
@@ -39,7 +40,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
-from analysis.identify.output_error import RunData
+from analysis.identify.run_data import RunData
 from analysis.loop.candidate_fit import (
     NOISE_LEVEL,
     STOP,

@@ -5,10 +5,11 @@ residual's autocorrelation counted), it is no look-alike of a determined constan
 (|correlation| < 0.99), it cuts the residual by at least 2 % and explains at least
 one sensor-noise RMS of the measured motion — also over the model without it,
 refitted from the candidate fit's constants (the cut of a lower valley of the model
-the loop already has is not the effect's) — and it predicts held-out runs better
-(`validation`). Where the model without a candidate, refitted from its constants,
-is ≥ 2 % below the current fit, that better fit is handed back and the step is
-done again from it before anything is named.
+the loop already has is not the effect's) — its lone prediction of every run stays
+bounded, and it predicts held-out runs better (`validation`). Where the model
+without a candidate, refitted from its constants, is ≥ 2 % below the current fit,
+that better fit is handed back and the step is done again from it before anything
+is named.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from analysis.loop.candidates import Candidate
 from analysis.loop.evidence import Diagnosis
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free
 from analysis.loop.result import Step
-from analysis.loop.runs import LoopRun, predicted_signature, run_errors
+from analysis.loop.runs import LoopRun, diverging_runs, predicted_signature, run_errors
 from analysis.loop.validation import held_out
 
 MIN_T = 3.0
@@ -76,6 +77,10 @@ def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
         if without.rss < fit.rss and (reason := why_refused(
                 without, cf, s.name, " over the model without it, refitted from its constants")):
             refused.append({"candidate": c.name, "reason": reason})
+            continue
+        if away := diverging_runs(cf, runs):
+            refused.append({"candidate": c.name, "reason": "its fit drives run "
+                            f"{', '.join(away)} unstable: the prediction runs away"})
             continue
         progress(f"loop: validating {c.name} on held-out runs")
         held = held_out(fit, cf, free, s.name, c, runs)

@@ -35,9 +35,9 @@ import numpy as np
 from scipy.ndimage import convolve1d, minimum_filter1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from analysis.identify.output_error import RunData
 from analysis.identify.pipeline import LINEAR
 from analysis.identify.regressors import campaign_regressors
+from analysis.identify.run_data import RunData
 from analysis.loop.candidates import CANDIDATES, SENSOR_DELAY, SENSOR_GAIN, Candidate
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind

@@ -29,13 +29,14 @@ import numpy as np
 from scipy.interpolate import PPoly
 from scipy.optimize import least_squares
 
-from analysis.identify.output_error import RunData, start_state
 from analysis.identify.regressors import state_after
+from analysis.identify.run_data import RunData, start_state
 from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS, Candidate
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import BOUC_WEN
 from analysis.simulate import RunSetup, simulate_batch, simulate_runs
 
+MAX_NFEV = 40  # evaluations of a refit: past it the step is seldom worth its time
 UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
 FD_STEP = 3e-3  # of a parameter's size: above the integrator's noise, below curvature
 DEAD_BAND_BOUNDS = (1e-5, 0.1)  # m, where a refit frees δ
@@ -107,6 +108,14 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
             z_end = _settle(h, V, S0, hysteretic, z_end, zd_all[:, -1],
                             float(run.motion(run.t[-1])), run.dt)
     return out
+
+
+UNSTABLE_TRAVEL = 10.0  # m: no isolator on the table moves this far
+
+
+def runs_away(x: np.ndarray) -> bool:
+    """True for a predicted motion that diverged (non-finite, or past UNSTABLE_TRAVEL)."""
+    return not (np.all(np.isfinite(x)) and np.max(np.abs(x)) < UNSTABLE_TRAVEL)
 
 
 SETTLE = 3.0  # s: many times the isolator's slowest decay (m/c1 ≈ 0.45 s)
@@ -204,7 +213,7 @@ class Fit:
 
 def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
           scales: Sequence[float], bounds: Sequence[tuple[float, float]],
-          fit_runs: Sequence[int] | None = None, max_nfev: int = 40) -> Fit:
+          fit_runs: Sequence[int] | None = None, max_nfev: int = MAX_NFEV) -> Fit:
     """Least squares of the named parameters on the runs `fit_runs` (default all)."""
     names = tuple(names)
     scales = np.asarray(scales, float)
@@ -233,7 +242,7 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
 
 def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
                candidates: dict[str, Candidate], fit_runs: Sequence[int] | None = None,
-               max_nfev: int = 40) -> Fit:
+               max_nfev: int = MAX_NFEV) -> Fit:
     """`refit` of the free parameters `names`, each at its size and within its bounds: a
     candidate's parameter (`candidates`, keyed by parameter) by its physics, the dead
     band within DEAD_BAND_BOUNDS, every other constant within 1/50 to 50 times its value."""

@@ -2,16 +2,29 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from analysis.fit_schema import (
+    Conditioning,
+    Estimate,
+    Evidence,
+    FitResult,
+    LoopOutcome,
+    LoopStep,
+    Refusal,
+    ResidualTests,
+    RunError,
+    Unexplained,
+)
 from analysis.identify.output_error import Z95
-from analysis.identify.report_format import fit_json
+from analysis.identify.report_format import fit_result
 from analysis.loop.refit import Fit
 from analysis.loop.result import LoopResult, Step
-from analysis.model.model_json import MODEL_KEY, covariance_from, model_json
+from analysis.model.model_json import covariance_from, model_json
 from rig.units import from_si, us_unit
 
 if TYPE_CHECKING:  # the pipeline's type only (as in `runs`)
@@ -38,27 +51,43 @@ def parameters_json(fit: Fit) -> dict[str, dict[str, float | str | None]]:
     return out
 
 
+def loop_outcome(result: LoopResult) -> LoopOutcome:
+    """The loop as the fit document's schema (`loop`, `effects_added`, `error_before`, …).
+
+    The loop's parts that already come as the document's objects (a run's errors, the
+    residual's tests, a step's evidence, a refusal) are read through the schema, so a
+    key it does not know fails here, where the document is written.
+    """
+    return LoopOutcome(
+        steps=tuple(_step(s, f"loop[{i}]") for i, s in enumerate(result.steps)),
+        effects_added=tuple(result.effects_added),
+        error_before=_errors(result.error_before, "error_before"),
+        error_after=_errors(result.error_after, "error_after"),
+        residual_before=ResidualTests.from_json_dict(result.diagnosis_before.as_dict(),
+                                                     "residual_before"),
+        residual_after=ResidualTests.from_json_dict(result.diagnosis_after.as_dict(),
+                                                    "residual_after"),
+        unexplained=Unexplained(result.unexplained, result.description),
+        refused=tuple(Refusal.from_json_dict(r, f"refused[{i}]")
+                      for i, r in enumerate(result.refused)),
+        conditioning=tuple(Conditioning.from_json_dict(c.as_dict(), f"conditioning[{i}]")
+                           for i, c in enumerate(result.conditioning)))
+
+
+def _step(s: Step, where: str) -> LoopStep:
+    return LoopStep(s.added, s.parameter, Estimate(s.value, s.std, s.unit),
+                    Evidence.from_json_dict(s.evidence, f"{where}.evidence"),
+                    _errors(s.error_before, f"{where}.error_before"),
+                    _errors(s.error_after, f"{where}.error_after"))
+
+
+def _errors(by_run: dict[str, dict[str, float]], where: str) -> dict[str, RunError]:
+    return {r: RunError.from_json_dict(e, f"{where}.{r}") for r, e in by_run.items()}
+
+
 def loop_json(result: LoopResult) -> dict[str, object]:
-    """The loop's JSON: `loop`, `effects_added`, `error_before`, `error_after`, …"""
-    return {
-        "loop": [_step_json(s) for s in result.steps],
-        "effects_added": result.effects_added,
-        "error_before": result.error_before,
-        "error_after": result.error_after,
-        "residual_before": result.diagnosis_before.as_dict(),
-        "residual_after": result.diagnosis_after.as_dict(),
-        "unexplained": {"value": result.unexplained, "description": result.description},
-        "refused": list(result.refused),
-        "conditioning": [c.as_dict() for c in result.conditioning],
-        "parameters": parameters_json(result.final),
-    }
-
-
-def _step_json(s: Step) -> dict[str, object]:
-    return {"added": s.added, "parameter": s.parameter,
-            "value": {"value": s.value, "std": s.std, "unit": s.unit},
-            "evidence": s.evidence, "error_before": s.error_before,
-            "error_after": s.error_after}
+    """The loop's keys of the fit document, with `parameters` the final refit's own."""
+    return {**loop_outcome(result).to_json_dict(), "parameters": parameters_json(result.final)}
 
 
 def format_loop(result: LoopResult, units: str = "us") -> str:
@@ -149,14 +178,15 @@ def loop_figures(result: LoopResult, out: Path, units: str = "si") -> list[Path]
     return paths
 
 
-def fit_document(fit: IsolatorFit, loop: LoopResult | None) -> dict:
-    """The document `analysis fit --json` writes (and a lot keeps per unit): the fit's
-    JSON, with the loop's keys and the closed-loop model where the loop ran."""
-    doc = fit_json(fit)
-    if loop is not None:
-        doc = with_loop(doc, loop_json(loop))
-        doc[MODEL_KEY] = loop_model_json(loop)
-    return doc
+def fit_document(fit: IsolatorFit, loop: LoopResult | None) -> FitResult:
+    """The document `analysis fit --json` writes (and a lot keeps per unit): the fit,
+    with the loop's outcome, its refit constants and the closed-loop model where it ran."""
+    doc = fit_result(fit)
+    if loop is None:
+        return doc
+    return replace(doc, parameters=merged_parameters(doc.parameters, parameters_json(loop.final)),
+                   identified_model=loop_model_json(loop), loop=loop_outcome(loop),
+                   parameters_base_model=doc.parameters)
 
 
 def loop_model_json(loop: LoopResult) -> dict:
@@ -167,22 +197,20 @@ def loop_model_json(loop: LoopResult) -> dict:
                       h.sensor_delay, source=f"closed loop, effects added: {added}")
 
 
-def with_loop(doc: dict, loop: dict) -> dict:
-    """The fit's JSON with the loop's keys; `parameters` become the final model's.
+def merged_parameters(base: dict[str, Estimate], loop: dict[str, dict]) -> dict[str, Estimate]:
+    """The fit's constants with the loop's refit (`parameters_json`) laid over them.
 
     The loop refits the constants it frees: their values, std and 95 % interval replace
-    the base fit's, and they are no longer held; what it held keeps the base fit's entry.
+    the base fit's, and they are no longer held; what it held keeps the base fit's std
+    and interval. A constant the loop added but could not estimate is `held` false.
     """
-    merged = {name: dict(entry) for name, entry in doc["parameters"].items()}
-    for name, entry in loop["parameters"].items():
-        mine = merged.setdefault(name, {"held": False})
-        mine["value"], mine["unit"] = entry["value"], entry["unit"]
-        if entry["std"] is not None:
-            v, s = entry["value"], entry["std"]
-            mine.update(std=s, ci95=[v - Z95 * s, v + Z95 * s])
-            mine.pop("held", None)
-        mine.setdefault("std", None)
-    out = {**doc, **{k: v for k, v in loop.items() if k != "parameters"}}
-    out["parameters_base_model"] = doc["parameters"]
-    out["parameters"] = merged
-    return out
+    merged = dict(base)
+    for name, entry in loop.items():
+        v, s, unit = entry["value"], entry["std"], entry["unit"]
+        if s is not None:
+            merged[name] = Estimate(v, s, unit, (v - Z95 * s, v + Z95 * s))
+        elif name in merged:
+            merged[name] = replace(merged[name], value=v, unit=unit)
+        else:
+            merged[name] = Estimate(v, None, unit, held=False)
+    return merged

@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis.identify.output_error import RunData, noise_sigma
+from analysis.identify.run_data import RunData, noise_sigma
 from analysis.identify.run_errors import compare
 from analysis.identify.table_motion import estimate_table_motion
 from analysis.loop.candidates import Candidate
 from analysis.loop.recent import Recent
-from analysis.loop.refit import Fit, Hypothesis, predict
+from analysis.loop.refit import Fit, Hypothesis, predict, runs_away
 
 if TYPE_CHECKING:  # the pipeline imports the loop's callers; only its type is needed here
     from analysis.identify.pipeline import IsolatorFit
@@ -62,6 +62,15 @@ def predicted_states(fit: Fit, runs: Sequence[LoopRun]
     pred = _predicted(fit.hypothesis, runs)
     z = [p[0] - r.data.motion(r.data.t) for p, r in zip(pred, runs)]
     return z, [np.gradient(v, r.data.t) for v, r in zip(z, runs)]
+
+
+def diverging_runs(fit: Fit, runs: Sequence[LoopRun]) -> list[str]:
+    """The runs whose lone prediction by the fit runs away (`refit.runs_away`): a
+    thermal term whose falling viscosity takes the damping below zero late in run C
+    predicts z 1e177 m there, while the refit's batch of rows, whose fluid temperature
+    differs from it in the last bits, stayed finite."""
+    z, zd = predicted_states(fit, runs)
+    return [r.data.name for r, a, b in zip(runs, z, zd) if runs_away(a) or runs_away(b)]
 
 
 def predicted_signature(fit: Fit, runs: Sequence[LoopRun], c: Candidate) -> np.ndarray:

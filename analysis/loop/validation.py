@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from analysis.identify.output_error import RunData
+from analysis.identify.run_data import RunData
 from analysis.loop.candidates import Candidate
 from analysis.loop.recent import Recent
 from analysis.loop.refit import Fit, predict, refit_free

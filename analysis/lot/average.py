@@ -14,7 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from analysis.identify.loading import load_runs
-from analysis.identify.pipeline import prepare, run_error, start_model
+from analysis.identify.pipeline import run_error, start_model
+from analysis.identify.prepare import prepare
 from analysis.lot.unit import FitOptions, UnitSpec, one_core
 from analysis.model.isolator import IsolatorModel
 

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from analysis.fit_schema import FitResult
 from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import REFINED, identify
 from analysis.loop import close_loop
@@ -177,29 +178,29 @@ def failed(spec: UnitSpec, reason: str, seconds: float = 0.0) -> UnitResult:
                       files=_names(spec), seconds=seconds, worker=worker_name())
 
 
-def from_fit(spec: UnitSpec, doc: dict, warnings: Sequence[str] = (), seconds: float = 0.0
-             ) -> UnitResult:
+def from_fit(spec: UnitSpec, result: FitResult, warnings: Sequence[str] = (),
+             seconds: float = 0.0) -> UnitResult:
     """The unit's summary from its `analysis fit --json` document (with the loop's keys)."""
-    params = doc["parameters"]
+    params = result.parameters
 
     def estimate(name: str) -> Estimate:
         e = params[name]
-        return Estimate(float(e["value"]), None if e.get("std") is None else float(e["std"]),
-                        e["unit"], bool(e.get("held", False)))
+        return Estimate(float(e.value), None if e.std is None else float(e.std), e.unit,
+                        bool(e.held))
 
-    effects = {s["added"]: estimate(s["parameter"]) if s["parameter"] in params
-               else Estimate(**{k: s["value"][k] for k in ("value", "std", "unit")})
-               for s in doc.get("loop", ())}
-    unexplained = doc.get("unexplained", {})
+    loop = result.loop
+    effects = {s.added: estimate(s.parameter) if s.parameter in params
+               else Estimate(s.value.value, s.value.std, s.value.unit)
+               for s in (loop.steps if loop else ())}
+    after = loop.error_after if loop else result.error
     return UnitResult(
         spec.name, spec.directory, spec.fingerprint, OK, files=_names(spec),
         constants={n: estimate(n) for n in ("m", *REFINED) if n in params},
         effects=effects,
-        residual_over_noise={r: float(e["residual_over_noise"])
-                             for r, e in doc.get("error_after", doc["error"]).items()},
-        unexplained=unexplained.get("description", "") if unexplained.get("value") else "",
+        residual_over_noise={r: float(e.residual_over_noise) for r, e in after.items()},
+        unexplained=loop.unexplained.description if loop and loop.unexplained.value else "",
         warnings=tuple(one_line(w, spec.directory) for w in warnings), seconds=seconds,
-        worker=worker_name(), fit=doc)
+        worker=worker_name(), fit=result.to_json_dict())
 
 
 def _names(spec: UnitSpec) -> tuple[str, ...]:

@@ -18,6 +18,11 @@ of the first order a grid-aligned switch would give.
 Base motion u(t) is a piecewise polynomial (scipy PPoly layout: `breaks` (K+1,),
 `coefs` (degree+1, K)), held constant outside its breaks; analytic profiles are
 exact in it and measured tables are a cubic spline.
+
+The integrator stays one module, past the house's ~300 lines: its njit functions
+call and inline into one another, and numba's cache (cache=True) is checked
+against the source file of each compiled function only, so a callee edited in
+another module would leave its callers' cached machine code stale.
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ BACKLOG_LIMIT_S = 1.0  # s the rig may fall behind its receive queue before it g
 
 
 @dataclass(frozen=True)
-class Step:
+class FrameOrder:
     """How a numbered frame relates to the newest one of its stream seen before it."""
 
     lost: int = 0  # frames missing just before this one
@@ -64,7 +64,7 @@ class Sequences:
     def __init__(self) -> None:
         self._last: dict[object, int] = {}
 
-    def step(self, key: object, value: int, modulus: int, per_frame: float = 1.0) -> Step:
+    def step(self, key: object, value: int, modulus: int, per_frame: float = 1.0) -> FrameOrder:
         """`value` (mod `modulus`) of stream `key`; frames advance it by `per_frame`.
 
         A step of more than half the modulus is a *late* frame (reordered), not a
@@ -73,14 +73,14 @@ class Sequences:
         last = self._last.get(key)
         if last is None:
             self._last[key] = value
-            return Step()
+            return FrameOrder()
         d = (value - last) % modulus
         if d == 0:
-            return Step(duplicate=per_frame >= 1.0)
+            return FrameOrder(duplicate=per_frame >= 1.0)
         if d > modulus // 2:
-            return Step(late=True)
+            return FrameOrder(late=True)
         self._last[key] = value
-        return Step(lost=round(d / per_frame) - 1 if d > 1.5 * per_frame else 0)
+        return FrameOrder(lost=round(d / per_frame) - 1 if d > 1.5 * per_frame else 0)
 
     def forget(self, key: object) -> None:
         """Start `key` afresh (its numbering restarted)."""

@@ -41,7 +41,7 @@ from rig.config import RigConfig
 from rig.errors import DataError, RigError
 from rig.geometry import ActuatorPlan
 from rig.run.clock_fit import ClockFit
-from rig.run.interlocks import FOLLOWING_LIMIT_M, LIVENESS_S, Interlocks, Sequences, Step
+from rig.run.interlocks import FOLLOWING_LIMIT_M, LIVENESS_S, FrameOrder, Interlocks, Sequences
 from rig.run.status import ActuatorLive, LiveStatus, Trace
 from rig.runfile import RunWriter
 from rig.wire import can_messages as cm
@@ -138,7 +138,7 @@ class Recorder:
         t = stamp - (self._start_unix if stream == "can" else self._t0)
         self.watch.reached(stream, t)
 
-    def _count(self, step: Step) -> bool:
+    def _count(self, step: FrameOrder) -> bool:
         """Count a CAN frame's step; True if its content is new (goes to the channels)."""
         if step.lost:
             self.lost["can"] += step.lost

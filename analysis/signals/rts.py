@@ -1,9 +1,9 @@
-"""The Kalman filter + Rauch–Tung–Striebel smoother of `analysis.differentiate` ('rts').
+"""The Kalman filter + Rauch–Tung–Striebel smoother of `analysis.signals.differentiate` ('rts').
 
 An integrated-Wiener model of order p (p = 3: white jerk; 4: white snap; 5)
 whose process noise puts the smoother's half-amplitude point at the cutoff fc:
-its response is 1/(1 + (f/fc)^(2p)). Split from `analysis.differentiate` to
-keep each module short; `rts_grid` and `rts_q` are what it uses.
+its response is 1/(1 + (f/fc)^(2p)). `rts_grid` and `rts_q` are what
+`analysis.signals.differentiate` uses.
 """
 
 from __future__ import annotations

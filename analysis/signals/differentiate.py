@@ -10,7 +10,7 @@ where its amplitude response to x is ½.
 - ``rts``: Kalman filter + Rauch–Tung–Striebel smoother of an integrated-Wiener
   model of order p (p = 3: white jerk, the "Wiener acceleration" model; 4: white
   snap; 5), with the process noise set so that the smoother's response is
-  1/(1 + (f/fc)^(2p)); see `analysis.kalman`-style notes in `_rts_run`.
+  1/(1 + (f/fc)^(2p)); the smoother is `analysis.signals.rts`.
 
 Settings come from the data: σ from `estimate_noise`, then `fc` minimises
 Mallows' Cp, the unbiased estimate of the mean squared error of the smoothed x,
@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 from scipy.interpolate import make_smoothing_spline
 
-from analysis.differentiate_rts import RTS_ORDERS, rts_grid, rts_q
+from analysis.signals.rts import RTS_ORDERS, rts_grid, rts_q
 
 METHODS = ("savgol", "butter", "spline", "rts")
 AUTO = "butter"

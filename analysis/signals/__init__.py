@@ -1,0 +1,1 @@
+"""Signals from sampled displacement: velocity and acceleration, and which samples rest."""
