@@ -3,44 +3,38 @@
 Nothing here comes from the project's packages (``analysis``, ``sim``, ``rig``): the
 model, the base motions, the extra effects, the integrator and the sensor model are
 written again from the report, so the project's identification can be tested on
-data it did not make.
+data it did not make. The generator's modules in ``bench.unseen``:
 
-Model, in relative coordinates z = x - u (u table, x mass, both absolute)::
+- ``motion``: the ramp shapes and the table's commanded motion (rest, ramp, hold,
+  ramp back, rest; RAMPS, REST, HOLD, STEP);
+- ``effects``: the force F(z, z') with each extra effect's terms, EFFECTS, and the
+  draw of an effect's parameters;
+- ``plant``: the hybrid model (dead band, static friction) with its right-hand sides,
+  events and initial state, and MASS;
+- ``integrate``: its integration on ``scipy.integrate.solve_ivp``, restarted at every
+  event;
+- this module: a campaign's draw (constants ±30 % around Table 1, ramp shape, record
+  length, noise, quantisation, effects), its three runs with the sensor effects and
+  the noise on the 1 kHz grid, and its files.
 
-    m z'' = -m u'' - F(z, z')
-    F = c1 z'                                                    (|z| <= delta)
-    F = k1 z + k2 tanh(alpha z) + c1 z' + c2 tanh(beta z')       (|z| >  delta)
-
-plus static friction: while stuck (z' = 0) the mass moves with the table until
-|m u'' + F(z, 0)| exceeds the breakaway force F_b; sliding stops when |z'| < eps and
-the force is within breakaway. At a dead-band edge the spring force jumps; a mass
-resting against the edge is held there (the force is set-valued at the edge) the same
-way as by friction, which keeps the integration free of chattering.
-
-Every dead-band entry/exit and every stick/slip transition is an event of
-``scipy.integrate.solve_ivp``; the integration restarts at each one in the new mode.
-
-    python bench/unseen/generator.py --seed 3 --effect coulomb --out /tmp/c3
+    python -m bench.unseen.generator --seed 3 --effect coulomb --out /tmp/c3
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.optimize import brentq
 
-LB = 4.44822  # N
-IN = 0.0254  # m
+from bench.unseen.effects import EFFECTS, draw_effect
+from bench.unseen.integrate import simulate
+from bench.unseen.motion import HOLD, RAMPS, REST, SHAPES, STEP, Profile
+from bench.unseen.plant import MASS, Plant
 
-MASS = 2721.55  # kg (6000 lb)
-STEP = 5.5 * IN  # 0.1397 m
 FS = 1000.0  # Hz
 
 # Table 1 averages in SI: the centre of each campaign's draw.
@@ -56,348 +50,7 @@ CENTRE = {
     "F_b": 91.63,
 }
 
-RAMPS = {"A": 0.20, "B": 0.16, "C": 0.12}
-REST = 0.1
-HOLD = 1.3
 
-EFFECTS = (
-    "coulomb",
-    "orifice",
-    "hardening",
-    "asym_stiffness",
-    "asym_damping",
-    "preload",
-    "thermal",
-    "bouc_wen",
-    "sensor_delay",
-    "sensor_gain",
-    "force_offset",
-    "servo_lag",
-)
-
-
-# --------------------------------------------------------------------------- ramps
-def _cycloidal(tau: float) -> tuple[float, float, float]:
-    w = 2.0 * math.pi
-    return (tau - math.sin(w * tau) / w, 1.0 - math.cos(w * tau), w * math.sin(w * tau))
-
-
-def _half_cosine(tau: float) -> tuple[float, float, float]:
-    p = math.pi
-    return ((1.0 - math.cos(p * tau)) / 2.0, p * math.sin(p * tau) / 2.0,
-            p * p * math.cos(p * tau) / 2.0)
-
-
-def _min_jerk(tau: float) -> tuple[float, float, float]:
-    t2, t3 = tau * tau, tau * tau * tau
-    return (
-        10 * t3 - 15 * t3 * tau + 6 * t3 * t2,
-        30 * t2 - 60 * t3 + 30 * t2 * t2,
-        60 * tau - 180 * t2 + 120 * t3,
-    )
-
-
-SHAPES: dict[str, Callable[[float], tuple[float, float, float]]] = {
-    "cycloidal": _cycloidal,
-    "half_cosine": _half_cosine,
-    "min_jerk": _min_jerk,
-}
-
-
-def shape(name: str, tau: np.ndarray | float) -> np.ndarray:
-    """The ramp shape s(tau), tau in [0, 1] -> [0, 1] (clipped outside)."""
-    f = SHAPES[name]
-    return np.array([f(min(1.0, max(0.0, float(v))))[0] for v in np.atleast_1d(tau)])
-
-
-class Profile:
-    """Commanded table motion: rest, ramp up STEP, hold, ramp back, rest."""
-
-    def __init__(self, shape_name: str, ramp: float, rest: float = REST, hold: float = HOLD):
-        self.f = SHAPES[shape_name]
-        self.ramp = ramp
-        self.t1 = rest
-        self.t2 = rest + ramp
-        self.t3 = rest + ramp + hold
-        self.t4 = rest + 2 * ramp + hold
-        self.breaks = (self.t1, self.t2, self.t3, self.t4)
-
-    def piece_at(self, t: float) -> int:
-        """Which piece (rest, up, hold, down, rest) holds t; right-continuous at breaks."""
-        return sum(t >= b for b in self.breaks)
-
-    def __call__(self, t: float, piece: int | None = None) -> tuple[float, float, float]:
-        """(u, u', u'') of the command at t, on the given piece (u'' jumps at the breaks
-        of a half-cosine ramp: an integration segment keeps its own piece to its end)."""
-        r = self.ramp
-        if piece is None:
-            piece = self.piece_at(t)
-        if piece == 1:
-            s, sd, sdd = self.f(min(1.0, max(0.0, (t - self.t1) / r)))
-            return STEP * s, STEP * sd / r, STEP * sdd / (r * r)
-        if piece == 2:
-            return STEP, 0.0, 0.0
-        if piece == 3:
-            s, sd, sdd = self.f(min(1.0, max(0.0, (t - self.t3) / r)))
-            return STEP * (1.0 - s), -STEP * sd / r, -STEP * sdd / (r * r)
-        return 0.0, 0.0, 0.0
-
-
-# --------------------------------------------------------------------------- plant
-class Plant:
-    """Eq 10 with a dead band, static friction and the drawn effects.
-
-    State y = [z, z', u_lag, T, w]: relative displacement and velocity, the lagged
-    table (servo lag only), the thermal state (thermal only), Bouc-Wen w (bouc_wen only).
-    """
-
-    def __init__(self, k: dict, effects: dict[str, dict], profile: Profile):
-        self.k = k
-        self.e = effects
-        self.p = profile
-        self.m = MASS
-        lag = effects.get("servo_lag")
-        self.tau_lag = lag["tau"] if lag else 0.0
-        self.piece = 0  # the profile piece of the current integration segment
-
-    # table motion -------------------------------------------------------------
-    def table(self, t: float, y) -> tuple[float, float, float]:
-        """(u, u', u'') of the table itself (the command, or its first-order lag)."""
-        if self.tau_lag:
-            uc, ucd, _ = self.p(t, self.piece)
-            ul = y[2]
-            uld = (uc - ul) / self.tau_lag
-            return ul, uld, (ucd - uld) / self.tau_lag
-        return self.p(t, self.piece)
-
-    # forces -------------------------------------------------------------------
-    def spring(self, z: float) -> float:
-        """Spring terms acting outside the dead band."""
-        k, e = self.k, self.e
-        s = k["k1"] * z + k["k2"] * math.tanh(k["alpha"] * z)
-        if "hardening" in e:
-            s += e["hardening"]["k3"] * z * z * z
-        if "asym_stiffness" in e and z > 0.0:
-            s += e["asym_stiffness"]["k_a"] * z
-        if "preload" in e:
-            p = e["preload"]
-            s += p["gamma"] * math.tanh(z / p["w"])
-        return s
-
-    def force(self, z: float, zd: float, inside: bool, T: float, w: float) -> float:
-        k, e = self.k, self.e
-        c1 = k["c1"]
-        if "thermal" in e:
-            c1 *= max(0.05, 1.0 - e["thermal"]["kappa"] * T)
-        f = c1 * zd
-        if not inside:
-            f += self.spring(z) + k["c2"] * math.tanh(k["beta"] * zd)
-        if "coulomb" in e:
-            f += e["coulomb"]["F_c"] * math.tanh(zd / e["coulomb"]["v_s"])
-        if "orifice" in e:
-            f += e["orifice"]["c_q"] * zd * abs(zd)
-        if "asym_damping" in e and zd > 0.0:
-            f += e["asym_damping"]["c_a"] * zd
-        if "bouc_wen" in e:
-            f += e["bouc_wen"]["k_h"] * w
-        if "force_offset" in e:
-            f += e["force_offset"]["F0"]
-        return f
-
-    # right-hand sides ----------------------------------------------------------
-    def rhs_slip(self, inside: bool):
-        e, m, k = self.e, self.m, self.k
-        th = e.get("thermal")
-        bw = e.get("bouc_wen")
-
-        def f(t, y):
-            z, zd, _, T, w = y
-            _, uld, udd = self.table(t, y)
-            F = self.force(z, zd, inside, T, w)
-            Td = (k["c1"] * zd * zd / th["C"] - T) / th["tau_T"] if th else 0.0
-            if bw:
-                aw = abs(w)
-                wn1 = aw ** (bw["n"] - 1.0) if aw > 0.0 else (1.0 if bw["n"] == 1.0 else 0.0)
-                wd = zd - bw["beta_h"] * abs(zd) * wn1 * w - bw["gamma_h"] * zd * wn1 * aw
-            else:
-                wd = 0.0
-            return [zd, -udd - F / m, uld, Td, wd]
-
-        return f
-
-    def rhs_stuck(self):
-        th = self.e.get("thermal")
-
-        def f(t, y):
-            _, uld, _ = self.table(t, y)
-            Td = -y[3] / th["tau_T"] if th else 0.0
-            return [0.0, 0.0, uld, Td, 0.0]
-
-        return f
-
-    def hold_interval(self, t: float, y, edge: int, inside: bool) -> tuple[float, float]:
-        """The range of the force the table must supply to hold the mass (z' = 0)."""
-        z, _, _, T, w = y
-        _, _, udd = self.table(t, y)
-        mu = self.m * udd
-        if edge:
-            a = mu + self.force(z, 0.0, True, T, w)
-            b = mu + self.force(z, 0.0, False, T, w)
-            return (a, b) if a <= b else (b, a)
-        a = mu + self.force(z, 0.0, inside, T, w)
-        return a, a
-
-    # events ------------------------------------------------------------------
-    def ev_deadband(self, inside: bool):
-        d = self.k["delta"]
-
-        def g(t, y):
-            return abs(y[0]) - d
-
-        g.terminal = True
-        g.direction = 1.0 if inside else -1.0
-        return g
-
-    def ev_stick(self, inside: bool):
-        k, m = self.k, self.m
-
-        def g(t, y):
-            z, zd, _, T, w = y
-            _, _, udd = self.table(t, y)
-            return max(abs(zd) - k["eps"],
-                       abs(m * udd + self.force(z, 0.0, inside, T, w)) - k["F_b"])
-
-        g.terminal = True
-        g.direction = -1.0
-        return g
-
-    def ev_breakaway(self, edge: int, inside: bool):
-        fb = self.k["F_b"]
-
-        def g(t, y):
-            a, b = self.hold_interval(t, y, edge, inside)
-            return max(a - fb, -b - fb)
-
-        g.terminal = True
-        g.direction = 1.0
-        return g
-
-    # initial state -------------------------------------------------------------
-    def initial(self) -> tuple[list[float], int, bool]:
-        """Rest: z = 0 unless a force offset pushes the mass to an edge or beyond."""
-        d, fb = self.k["delta"], self.k["F_b"]
-        F0 = self.e.get("force_offset", {}).get("F0", 0.0)
-        if abs(F0) <= fb:
-            return [0.0, 0.0, 0.0, 0.0, 0.0], 0, True
-        sgn = -1.0 if F0 > 0 else 1.0
-        z_edge = sgn * d
-        if abs(self.spring(z_edge)) >= abs(F0):
-            return [z_edge, 0.0, 0.0, 0.0, 0.0], int(sgn), True
-        hi = z_edge
-        while abs(self.spring(hi)) < abs(F0):
-            hi *= 2.0
-        z = brentq(lambda v: self.spring(v) + F0, z_edge, hi, xtol=1e-14)
-        return [z, 0.0, 0.0, 0.0, 0.0], 0, False
-
-
-@dataclass
-class Trajectory:
-    """Dense solution over the whole record: piecewise solve_ivp segments."""
-
-    starts: list[float]
-    sols: list
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        t = np.asarray(t, dtype=float)
-        out = np.empty((5, t.size))
-        idx = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.sols) - 1)
-        for i in np.unique(idx):
-            sel = idx == i
-            out[:, sel] = self.sols[i](t[sel])
-        return out
-
-
-def simulate(plant: Plant, t_end: float, max_events: int = 20000,
-             dwell: float = 5e-4) -> Trajectory:
-    """Integrate the hybrid model from rest to t_end, restarting at every event.
-
-    After a breakaway the mass slides for at least ``dwell`` seconds before it may stick
-    again: with a stiff element in the load path (Bouc-Wen) the force otherwise sits on
-    the breakaway threshold and stick/slip would alternate without time advancing.
-    """
-    opts = {"method": "RK45", "rtol": 1e-8, "atol": 1e-10, "max_step": 5e-4, "dense_output": True}
-    k = plant.k
-    y, edge, inside = plant.initial()
-    y = np.asarray(y, dtype=float)
-    stuck = True
-    breaks = [b for b in plant.p.breaks if 0.0 < b < t_end] + [t_end]
-    t = 0.0
-    starts: list[float] = []
-    sols: list = []
-    stalled = 0
-    no_stick_until = -1.0
-    for _ in range(max_events):
-        if t >= t_end:
-            break
-        t_stop = next(b for b in breaks if b > t + 1e-12)
-        plant.piece = plant.p.piece_at(t + 1e-12)
-        if stuck:
-            # at the start of a stuck segment: does the mass break away at once? (with a
-            # small margin: a stick event leaves the force at the threshold to rounding)
-            a, b = plant.hold_interval(t, y, edge, inside)
-            fb = k["F_b"] * (1.0 + 1e-7)
-            if a > fb or b < -fb:
-                stuck, inside = False, _region_after_breakaway(y[0], edge, inside, a > fb)
-                edge, no_stick_until = 0, t + dwell
-                continue
-            fun, events = plant.rhs_stuck(), [plant.ev_breakaway(edge, inside)]
-        elif t < no_stick_until:
-            t_stop = min(t_stop, no_stick_until)
-            fun, events = plant.rhs_slip(inside), [plant.ev_deadband(inside)]
-        else:
-            fun = plant.rhs_slip(inside)
-            events = [plant.ev_deadband(inside), plant.ev_stick(inside)]
-        sol = solve_ivp(fun, (t, t_stop), y, events=events, **opts)
-        if sol.status == -1:
-            raise RuntimeError(f"integration failed at t={t:.6f}: {sol.message}")
-        starts.append(t)
-        sols.append(sol.sol)
-        t_new, y = float(sol.t[-1]), sol.y[:, -1].copy()
-        stalled = stalled + 1 if t_new - t < 1e-10 else 0
-        if stalled > 50:
-            raise RuntimeError(f"no progress at t={t:.6f} (mode stuck={stuck}, inside={inside})")
-        t = t_new
-        if sol.status != 1:
-            continue  # reached a breakpoint: same mode
-        if stuck:  # breakaway
-            a, b = plant.hold_interval(t, y, edge, inside)
-            push_neg = (a - k["F_b"]) >= (-b - k["F_b"])
-            inside = _region_after_breakaway(y[0], edge, inside, push_neg)
-            stuck, edge, no_stick_until = False, 0, t + dwell
-        elif sol.t_events[0].size:  # dead-band edge
-            y[0] = math.copysign(k["delta"], y[0])
-            sgn = 1 if y[0] > 0 else -1
-            a, b = plant.hold_interval(t, y, sgn, inside)
-            if abs(y[1]) < k["eps"] and a <= k["F_b"] and b >= -k["F_b"]:
-                stuck, edge, y[1] = True, sgn, 0.0
-            else:
-                inside = not inside
-        else:  # stick
-            stuck, edge, y[1] = True, 0, 0.0
-    else:
-        raise RuntimeError(f"more than {max_events} events before t={t:.6f}")
-    return Trajectory(starts, sols)
-
-
-def _region_after_breakaway(z: float, edge: int, inside: bool, push_neg: bool) -> bool:
-    """Which side of the dead band the mass moves into when it breaks away."""
-    if not edge:
-        return inside
-    moving = -1 if push_neg else 1
-    return moving * edge < 0  # towards the centre: inside
-
-
-# --------------------------------------------------------------------------- campaign
 @dataclass
 class Campaign:
     seed: int
@@ -448,47 +101,6 @@ def _reference(k: dict, shape_name: str, length: float) -> dict:
     }
 
 
-def _draw_effect(name: str, rng: np.random.Generator, mag: float, ref: dict, k: dict) -> dict:
-    F = mag * ref["F_ref"]
-    zp, vp = max(ref["z_peak"], k["delta"]), max(ref["v_peak"], 1e-3)
-    if name == "coulomb":
-        return {"F_c": F, "v_s": float(rng.uniform(1e-3, 10e-3))}
-    if name == "orifice":
-        return {"c_q": F / vp**2}
-    if name == "hardening":
-        return {"k3": F / zp**3}
-    if name == "asym_stiffness":
-        return {"k_a": F / zp}
-    if name == "asym_damping":
-        return {"c_a": F / vp}
-    if name == "preload":
-        return {"gamma": F, "w": float(rng.uniform(0.5e-3, 3e-3))}
-    if name == "thermal":
-        tau_T = float(rng.uniform(0.5, 5.0))
-        p_ref = k["c1"] * vp**2
-        # heating scale: one ramp's dissipation lifts T by about 1/heat
-        heat = float(rng.uniform(0.5, 2.0))
-        return {
-            "kappa": min(0.9, F / (k["c1"] * vp)),
-            "tau_T": tau_T,
-            "C": p_ref * RAMPS["A"] / 2.0 / tau_T * heat,
-        }
-    if name == "bouc_wen":
-        n = float(rng.uniform(1.0, 2.0))
-        y = float(rng.uniform(1e-3, 5e-3))
-        r = float(rng.uniform(0.5, 0.9))
-        return {"k_h": F / y, "n": n, "y": y, "beta_h": r / y**n, "gamma_h": (1 - r) / y**n}
-    if name == "sensor_delay":
-        return {"d": float(rng.uniform(1e-3, 5e-3))}
-    if name == "sensor_gain":
-        return {"g": float(rng.uniform(0.02, 0.08))}
-    if name == "force_offset":
-        return {"F0": F * float(rng.choice([-1.0, 1.0]))}
-    if name == "servo_lag":
-        return {"tau": float(rng.uniform(3e-3, 8e-3))}
-    raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
-
-
 def make_campaign(seed: int, effects: Sequence[str] = (),
                   magnitude: float | None = None) -> Campaign:
     """Draw one campaign (runs A, B, C) from numpy.random.default_rng(seed)."""
@@ -509,7 +121,7 @@ def make_campaign(seed: int, effects: Sequence[str] = (),
         for name in effects:
             if name in drawn:
                 continue
-            drawn[name] = _draw_effect(name, rng, mag, ref, k)
+            drawn[name] = draw_effect(name, rng, mag, ref, k)
             effect_list.append({"name": name, "magnitude": mag, **drawn[name]})
 
     nrng = np.random.default_rng(noise_seed)
