@@ -22,7 +22,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from analysis.identify.regressors import campaign_regressors
-from analysis.identify.run_data import RunData
 from analysis.loop.candidates import Candidate
 from analysis.loop.refit import (
     MAX_NFEV,
@@ -31,15 +30,15 @@ from analysis.loop.refit import (
     Score,
     predict,
     refit_free,
-    runs_away,
 )
 from analysis.loop.reidentify import (
     Reidentified,
     base_projection,
+    moving,
     moving_data,
     with_candidate,
 )
-from analysis.loop.runs import LoopRun
+from analysis.loop.runs import LoopRun, diverging_runs
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
 
@@ -49,7 +48,6 @@ NOISE_LEVEL = 1.05  # residual/noise at or below which the model is "at the nois
 ABSENT = 1e-6  # a nonlinear coefficient this fraction of its linear one: the term is absent
 STOP = ("delta", "epsilon")  # dead band and stop velocity: freed, or held, together
 SHAPE_CONSTANTS = ("alpha", "beta", *STOP)
-MIN_MOVING = 100  # samples with relative motion an identification by equation error needs
 
 
 def constants_present(model: IsolatorModel) -> list[str]:
@@ -75,8 +73,8 @@ def reidentify_candidates(h: Hypothesis, runs: Sequence[LoopRun],
         return {}  # a term with a state (added on an earlier step) is no regressor
     data = moving_data([r.data.x - r.data.motion(r.data.t) for r in runs],
                        [r.zd for r in runs], [r.xdd for r in runs], h.model.stop_velocity)
-    if data.z.size < MIN_MOVING:
-        return {}  # a stop velocity the fit has raised past nearly every sample's speed
+    if data is None:
+        return {}
     out = {"": base_projection(h.model, data)}
     if not np.isfinite(out[""].sigma2) or out[""].sigma2 <= 0:
         return {}
@@ -119,12 +117,12 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
         entries += [(h0, n) for n in _unique([own, _held(own)])]
     sizes = _starts(cand_h, data, s, c)
     entries += [(cand_h.with_values({s.name: v}), names) for v in sizes]
-    return s, c, cand_h, sizes, min(fits + [_race(entries, data, {s.name: c})],
+    return s, c, cand_h, sizes, min(fits + [_race(entries, runs, {s.name: c})],
                                     key=lambda f: f.rss)
 
 
 def refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: list[str],
-                     s: Score, c: Candidate, sizes: list[float], data: Sequence[RunData],
+                     s: Score, c: Candidate, sizes: list[float], runs: Sequence[LoopRun],
                      progress: Callable[[str], None]) -> Fit:
     """The best of the candidate's refit `cf` and refits from the loop's start model."""
     lo, hi = c.bounds(h.model)
@@ -136,13 +134,13 @@ def refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: lis
     progress(f"loop: refitting with {c.name} from the starting constants")
     names = free + [s.name] + c.shape_parameters(h.model)
     return min([cf, _race([(h0, n) for h0 in starts for n in _unique([names, _held(names)])],
-                          data, {s.name: c})], key=lambda f: f.rss)
+                          runs, {s.name: c})], key=lambda f: f.rss)
 
 
 RACE_NFEV = 10  # evaluations each raced start gets; the best then gets the rest of MAX_NFEV
 
 
-def _race(entries: Sequence[tuple[Hypothesis, list[str]]], data: Sequence[RunData],
+def _race(entries: Sequence[tuple[Hypothesis, list[str]]], runs: Sequence[LoopRun],
           candidates: dict[str, Candidate]) -> Fit:
     """The best of several starts (hypothesis, free names), each given RACE_NFEV
     evaluations, refitted on from where it got to.
@@ -152,21 +150,18 @@ def _race(entries: Sequence[tuple[Hypothesis, list[str]]], data: Sequence[RunDat
     end, every start but the best one spent four times the simulations to lose (a
     campaign with the effect not in the library's shape ran them all, 64 of its 99 s).
     """
+    data = [r.data for r in runs]
     short = [refit_free(h0, data, names, candidates, max_nfev=RACE_NFEV)
              for h0, names in entries]
     order = sorted(range(len(short)), key=lambda i: short[i].rss)
     # the lowest whose lone prediction stays bounded: a batch of rows can stay finite
     # where the one model it stands for runs away (`judge` refuses such a fit)
-    best = next((i for i in order if _bounded(short[i], data)), order[0])
+    best = next((i for i in order if not diverging_runs(short[i], runs)), order[0])
     if short[best].evaluations < RACE_NFEV:
         return short[best]  # converged within the race
     on = refit_free(short[best].hypothesis, data, entries[best][1], candidates,
                     max_nfev=MAX_NFEV - RACE_NFEV)
-    return on if on.rss < short[best].rss and _bounded(on, data) else short[best]
-
-
-def _bounded(fit: Fit, data: Sequence[RunData]) -> bool:
-    return not any(runs_away(x) for x in predict(fit.hypothesis, data))
+    return on if on.rss < short[best].rss and not diverging_runs(on, runs) else short[best]
 
 
 def _held(names: list[str]) -> list[str]:
@@ -249,7 +244,7 @@ def _equation_error(h: Hypothesis, runs: Sequence[LoopRun], names: Sequence[str]
     """Appendix A's least squares of the named coefficients (others fixed) on moving samples.
 
     Returns (names, values, residual sum of squares in N²), or None without measured
-    derivatives.
+    derivatives or moving samples.
     """
     if any(r.zd is None or r.xdd is None for r in runs):
         return None
@@ -258,11 +253,13 @@ def _equation_error(h: Hypothesis, runs: Sequence[LoopRun], names: Sequence[str]
     Z = campaign_regressors(model, z, [r.zd for r in runs], runs[0].data.dt)
     zd = np.concatenate([r.zd for r in runs])
     y = -model.mass * np.concatenate([r.xdd for r in runs])
-    moving = np.abs(zd) > max(2.0 * model.stop_velocity, 1e-3)  # appendix A drops rest
+    mask = moving(zd, model.stop_velocity)
+    if mask is None:
+        return None
     cols = [j for j, t in enumerate(model.terms) if t.name in names]
     fixed = [j for j in range(len(model.terms)) if j not in cols]
-    known = Z[moving][:, fixed] @ np.array([model.terms[j].coef for j in fixed])
-    A, b = Z[moving][:, cols], y[moving] - known
+    known = Z[mask][:, fixed] @ np.array([model.terms[j].coef for j in fixed])
+    A, b = Z[mask][:, cols], y[mask] - known
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
     rss = float(np.sum((b - A @ coef) ** 2))
     return [model.terms[j].name for j in cols], coef, rss

@@ -222,6 +222,6 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
     if cf.residual_over_noise > NOISE_LEVEL:
         # not at the noise from the fitted constants: perhaps they have soaked up the
         # effect (`refit_from_start`)
-        cf = refit_from_start(start, cf, cand_h, free, s, c, sizes, [r.data for r in runs],
+        cf = refit_from_start(start, cf, cand_h, free, s, c, sizes, runs,
                               progress)
     return judge(fit, free, runs, diag, [(s, c, cand_h, sizes, cf)], progress)

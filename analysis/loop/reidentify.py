@@ -44,12 +44,23 @@ class Reidentified:
     sigma2: float
 
 
+MIN_MOVING = 100  # samples with relative motion an identification by equation error needs
+
+
+def moving(zd: np.ndarray, stop_velocity: float) -> np.ndarray | None:
+    """Which samples have relative motion (appendix A drops rest); None where fewer than
+    MIN_MOVING do (a stop velocity a fit has raised past nearly every sample's speed):
+    then there is nothing to identify by equation error."""
+    mask = np.abs(zd) > max(2.0 * stop_velocity, 1e-3)
+    return mask if np.count_nonzero(mask) >= MIN_MOVING else None
+
+
 def moving_data(z: Sequence[np.ndarray], zd: Sequence[np.ndarray],
-                xdd: Sequence[np.ndarray], stop_velocity: float) -> Data:
-    """The runs' samples with relative motion, stacked (appendix A drops rest)."""
+                xdd: Sequence[np.ndarray], stop_velocity: float) -> Data | None:
+    """The runs' samples with relative motion, stacked; None where too few move (`moving`)."""
     z, zd, xdd = (np.concatenate(list(v)) for v in (z, zd, xdd))
-    moving = np.abs(zd) > max(2.0 * stop_velocity, 1e-3)
-    return Data(z[moving], zd[moving], xdd[moving])
+    mask = moving(zd, stop_velocity)
+    return None if mask is None else Data(z[mask], zd[mask], xdd[mask])
 
 
 def base_projection(model: IsolatorModel, data: Data) -> Reidentified:

@@ -27,11 +27,9 @@ prediction of the mass's motion leaves it out.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -39,6 +37,7 @@ from numpy.typing import ArrayLike
 from analysis.model.isolator import IsolatorModel, Term
 from analysis.model.terms import kind
 from rig.errors import DataError
+from rig.json_document import read_document
 
 SCHEMA_VERSION = 1
 MODEL_KEY = "identified_model"
@@ -200,11 +199,4 @@ def _number(d: dict, key: str, where: str = MODEL_KEY) -> float:
 
 def read_model(path: str | os.PathLike[str]) -> IdentifiedModel:
     """The identified model of an `analysis fit --json` file; DataError names the file."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not a JSON file: {e}") from None
-    try:
-        return model_from_json(doc)
-    except DataError as e:
-        raise DataError(f"{path}: {e}") from None
+    return read_document(path, model_from_json)

@@ -8,12 +8,12 @@ lacks a key read here, is refused with one line (`DataError`) naming the key.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from rig.errors import DataError
+from rig.json_document import read_document
 from rig.units import from_si, us_unit
 
 #: the version of analysis/fit_schema.py this reader knows (tests/test_fit_schema.py)
@@ -74,14 +74,7 @@ class FitSummary:
 
 def read_summary(path: Path) -> FitSummary:
     """`summarize` of the file at `path`; DataError names the file."""
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not a JSON file: {e}") from None
-    try:
-        return summarize(doc)
-    except DataError as e:
-        raise DataError(f"{path}: {e}") from None
+    return read_document(path, summarize)
 
 
 def summarize(doc: Any) -> FitSummary:
