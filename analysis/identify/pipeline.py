@@ -241,6 +241,7 @@ FLAT_PROFILE = 1.1  # σ² within 10 % of its minimum: equation error cannot cho
 DISTINCT_ALPHA = 1.5  # a start this factor or more from the last one's α
 STEP_TOO_SMALL = "`xtol`"  # how scipy's least_squares says its steps fell below xtol
 RESTARTS = 3  # fresh trust regions after a fit's steps fell below xtol
+RESTART_LEVEL = 3.0  # residual / noise up to which a stopped fit is started again
 RESTART_GAIN = 0.995  # a restart is kept, and another tried, if it cut the residual by 0.5 %
 
 
@@ -280,8 +281,10 @@ def _smooth_fit(start: IsolatorModel, runs: Sequence[RunData]
     # then 1.016, then 1.008). Which cliff stops a fit follows the BLAS kernel's last
     # bits, so without the restarts the verdict did too (that unit: 1.57 x noise at
     # α 88.7 on one kernel, 1.010 on another)
+    # (near a right model's residual only: far above it, the valley is wrong, and the
+    # other α starts are what helps)
     for _ in range(RESTARTS):
-        if not fit.message.startswith(STEP_TOO_SMALL):
+        if fit.residual_rms > RESTART_LEVEL or not fit.message.startswith(STEP_TOO_SMALL):
             break
         again = refine(fit.model, runs, free)
         if not again.residual_rms < RESTART_GAIN * fit.residual_rms:
