@@ -96,14 +96,17 @@ def test_the_identified_model_predicts_the_measured_run_within_the_fits_residual
     the fit's own simulation of run A, so it must miss the measured x by the fit's residual
     (measured: 1.0090 against 1.0086 σ). 2 %: the spread of a right model's residual over
     noise draws (analysis.identify.pipeline, RETRY_LEVEL); a missing term or a unit slip
-    misses by 13–500 σ. Against the true motion it must be well inside the noise
-    (measured 0.07 σ): what is left is the constants' own error."""
+    misses by 13–500 σ. Against the true motion it must be well inside the noise: what is
+    left is the constants' own error, and where output error stops on this campaign's
+    stick–slip cliffs follows the BLAS kernel (joint fit 1.01 x noise, 0.07 σ from the truth
+    under SkylakeX; 1.03 x, 0.25 σ under Sandybridge): half the noise, 50 times below a
+    wrong model's miss."""
     tmp, doc, truth = clean_fit
     x = predicted_x(tmp, tmp / "fit.json")
     sigma = doc["preparation"]["A"]["sigma_x_m"]
     assert "identified model" in capsys.readouterr().out
     assert rms(x - measured_x(tmp)) / sigma <= 1.02 * doc["error"]["A"]["residual_over_noise"]
-    assert rms(x - truth["A"]) / sigma < 0.2
+    assert rms(x - truth["A"]) / sigma < 0.5
 
 
 def test_the_json_block_rebuilds_the_fitted_model_exactly(clean_fit):
