@@ -280,9 +280,8 @@ def _smooth_fit(start: IsolatorModel, runs: Sequence[RunData]
     # 70 1/m, then 1.010 at 82.3 from there, the truth 82.36; a clean campaign: 1.039,
     # then 1.016, then 1.008). Which cliff stops a fit follows the BLAS kernel's last
     # bits, so without the restarts the verdict did too (that unit: 1.57 x noise at
-    # α 88.7 on one kernel, 1.010 on another)
-    # (near a right model's residual only: far above it, the valley is wrong, and the
-    # other α starts are what helps)
+    # α 88.7 on one kernel, 1.010 on another). Near a right model's residual only: far
+    # above it the valley is wrong, and the other α starts are what helps
     for _ in range(RESTARTS):
         if fit.residual_rms > RESTART_LEVEL or not fit.message.startswith(STEP_TOO_SMALL):
             break
