@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import contextlib
 
-import can
-
 
 def release(exc: BaseException) -> None:
     """Close what the half-built readers in `exc`'s traceback hold; never raises."""
+    import can  # here, not at the top: `analysis fit` on CSV files never needs python-can
+
     tb = exc.__traceback__
     while tb is not None:
         obj = tb.tb_frame.f_locals.get("self")
