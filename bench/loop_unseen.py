@@ -1,6 +1,7 @@
 """The loop on data it has never seen, through the command a user runs.
 
-    python bench/loop_unseen.py [--quick] [--seeds N] [--jobs J] [--no-peers] [--out FILE.json]
+    python bench/loop_unseen.py [--quick] [--seeds N] [--jobs J] [--no-peers] [--only SEED,...]
+                                [--out FILE.json]
 
 Campaigns come from `bench/unseen/generator.py`, which shares no code or constants
 with the analysis (its own Eq 10 integrator, ramp shapes, effect shapes and sizes,
@@ -156,8 +157,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="campaigns identified at once")
     ap.add_argument("--no-peers", action="store_true", help="skip the peer baselines")
     ap.add_argument("--out", type=Path, help="write every row and the scores as JSON")
+    ap.add_argument("--only", type=lambda s: {int(v) for v in s.split(",")}, default=None,
+                    metavar="SEED,...", help="just these campaigns of the full set (by seed)")
     a = ap.parse_args(argv)
     todo = campaigns(a.quick, a.seeds)
+    if a.only is not None:
+        todo = [(s, e) for s, e in todo if s in a.only]
+        if not todo:
+            ap.error(f"no campaign has seed {sorted(a.only)}; see campaigns() for the numbering")
     print(f"{len(todo)} campaigns from bench/unseen/generator.py, {a.jobs} at a time")
     rows: dict[str, list[dict]] = {"analysis fit": []}
     with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(a.jobs) as pool:

@@ -53,6 +53,10 @@ class Candidate:
     # equation error over `shapes` and refitted with the effect; the rest only scale it
     free_shape: tuple[str, ...] = ()
     shapes: tuple[tuple[float, ...], ...] = ()  # the shapes equation error tries
+    # the coefficient of Eq 10 (a force in N, like this effect's) whose term a base fit
+    # bends into this effect's shape: k2 tanh(αz), saturated at the dead band's edge, is a
+    # preload's step; c2 tanh(βż) with a large β, a dry friction's
+    takes_over: str = ""
 
     def typical(self, model: IsolatorModel) -> float:
         """The physics-sized magnitude of this effect for `model` (SI)."""
@@ -112,7 +116,7 @@ CANDIDATES: dict[str, Candidate] = {
     for c in (
         Candidate("coulomb_friction", "dry friction of the rod seals: a constant force against "
                   "the motion, a step in the restoring force at ż = 0", "c3", "N", "zd",
-                  "coulomb", sign=+1),
+                  "coulomb", sign=+1, takes_over="c2"),
         Candidate("asymmetric_damping", "a check valve in the piston head: more damping in "
                   "extension than in compression", "c_ext", "N/(m/s)", "zd",
                   "extension_damper"),
@@ -123,7 +127,7 @@ CANDIDATES: dict[str, Candidate] = {
         Candidate("asymmetric_stiffness", "the rod displaces fluid in compression only: "
                   "stiffer one way than the other", "k_comp", "N/m", "z", "compression_spring"),
         Candidate("preload", "fluid preload: a force step γ sgn(z) at the edge of the dead "
-                  "band", "gamma", "N", "z", "preload", sign=+1),
+                  "band", "gamma", "N", "z", "preload", sign=+1, takes_over="k2"),
         Candidate("force_offset", "a constant force: a tilted track, a cable, a zero error",
                   "F0", "N", "t", "force_offset"),
         Candidate("thermal_damping_drift", "viscosity falls as the fluid heats from the energy "

@@ -24,10 +24,13 @@ Each step:
 4. validate the best across runs (`validation`): leave each run out, fit with and
    without the candidate on the others, predict the one left out. A candidate that
    does not predict the held-out runs better is fitting noise and is refused;
-5. add it, and go round again; where the model without the candidate, refitted
+5. where the top name is refused alone and equation error named a second one with it,
+   refit the two together and judge each against the model with the other one only
+   (`pair`): two effects can each fail alone where the two together fit;
+6. add it, and go round again; where the model without the candidate, refitted
    from its constants, is ≥ 2 % below the current fit, the step is done again
    from that better fit before anything is named;
-6. with two or more added, judge each again against the final model (backward
+7. with two or more added, judge each again against the final model (backward
    elimination): an effect named early that a later one made redundant is dropped.
 
 When nothing passes but the residual is still well above the noise (1.3 x),
@@ -52,8 +55,9 @@ from analysis.loop.candidate_fit import (
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.conditioning import candidate_collinearities
 from analysis.loop.evidence import Diagnosis, diagnose_fit
-from analysis.loop.judge import judge, own_parameters, why_refused
+from analysis.loop.judge import judge, look_alike_shape, own_parameters, why_refused
 from analysis.loop.naming import BIC_MARGIN, Naming, name_effects
+from analysis.loop.pair import pair_step
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
 from analysis.loop.result import LoopResult, Step
 from analysis.loop.runs import LoopRun, run_errors
@@ -94,7 +98,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
                      f"{better.residual_over_noise:.2f} x noise from a candidate's constants")
             fit, rebased = better, rebased + 1
             continue
-        steps.append(step[0])
+        steps.extend(step[0])
         fit = step[1]
         free = list(step[1].names)  # what the accepted fit freed (δ, a revived k2) stays free
     if len(steps) > 1:
@@ -133,10 +137,18 @@ def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunDa
     for step in list(steps):
         others = [n for n in free if n not in own_parameters(fit, step.parameter)]
         progress(f"loop: is {step.added} still needed with the effects named after it?")
+        cands = {s.parameter: CANDIDATES[s.added] for s in steps}
         without = refit_free(fit.hypothesis.with_values({step.parameter: 0.0}), data, others,
-                             {s.parameter: CANDIDATES[s.added] for s in steps if s is not step})
+                             {p: c for p, c in cands.items() if p != step.parameter})
         reason = ("the model without it fits as well" if without.rss <= fit.rss else
                   why_refused(without, fit, step.parameter))
+        if shape := (reason.startswith("a look-alike") and
+                     look_alike_shape(fit, step.parameter)):
+            # as on the way in (`judge`): a shape constant it stands in for held, judged
+            # again (a Coulomb friction beside a cubic spring, against ε at 0.997)
+            held = refit_free(fit.hypothesis, data, [n for n in fit.names if n != shape],
+                              cands)
+            reason = why_refused(without, held, step.parameter)
         if reason:
             dropped.append({"candidate": step.added, "reason": "dropped once the effects "
                             f"after it were in the model: {reason}"})
@@ -173,21 +185,38 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         return None, refused, None
     progress("loop: equation error names " + ", ".join(
         f"{n} (BIC -{g:.0f})" for n, g in zip(naming.order, naming.gains)))
+    lone: dict[str, tuple[Score, Candidate, Hypothesis, Fit | None]] = {}
     for name in naming.to_try()[:MAX_TRIED]:
-        # at the shape equation error chose (a cooling time, a yield), refitted with it
-        c = CANDIDATES[name].shaped(naming.shapes[name]) if name in naming.shapes else \
-            CANDIDATES[name]
-        ch, param = c.add_to(h.model)
-        if param in tried:
+        s, c, cand_h = _scored(fit, data, naming, name)
+        if s.name in tried:
             continue
-        cand_h = Hypothesis(ch, h.sensor_gain, h.sensor_delay)
-        s = score(fit, data, cand_h, param, c.typical(h.model), c.sign)
-        step, why, better = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, start,
-                                             progress)
+        step, why, better, cf = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, start,
+                                                 progress)
         refused.extend(why)
         if step is not None or better is not None:
-            return step, refused, better
+            return None if step is None else ((step[0],), step[1]), refused, better
+        lone[name] = (s, c, cand_h, cf)
+    # the top name refused alone, and a second named with it: the two together (`pair`)
+    pair = naming.order[:2]
+    if len(pair) == 2 and pair[0] in lone:
+        members = [lone.get(n) or (*_scored(fit, data, naming, n), None) for n in pair]
+        if not any(m[0].name in tried for m in members):
+            both, why = pair_step(fit, free, runs, members, progress)
+            refused.extend(why)
+            return both, refused, None
     return None, refused, None
+
+
+def _scored(fit: Fit, data: Sequence[RunData], naming: Naming, name: str
+            ) -> tuple[Score, Candidate, Hypothesis]:
+    """Candidate `name` at the shape equation error chose (a cooling time, a yield), the
+    hypothesis with it at zero, and its score against `fit`."""
+    h = fit.hypothesis
+    c = CANDIDATES[name].shaped(naming.shapes[name]) if name in naming.shapes else \
+        CANDIDATES[name]
+    ch, param = c.add_to(h.model)
+    cand_h = Hypothesis(ch, h.sensor_gain, h.sensor_delay)
+    return score(fit, data, cand_h, param, c.typical(h.model), c.sign), c, cand_h
 
 
 def _name(h: Hypothesis, data: Sequence[RunData], present: Sequence[str],
@@ -215,7 +244,8 @@ def _name(h: Hypothesis, data: Sequence[RunData], present: Sequence[str],
 def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
                      s: Score, c: Candidate, cand_h: Hypothesis, start: Hypothesis | None,
                      progress: Callable[[str], None]):
-    """One named candidate refitted and judged: (step, refused, better fit or None)."""
+    """One named candidate refitted and judged: (step, refused, better fit or None, its
+    refit)."""
     progress(f"loop: refitting with {c.name}")
     again = reidentify_candidates(fit.hypothesis, runs, [(s, c, cand_h)])
     s, c, cand_h, sizes, cf = candidate_refit(fit, free, runs, s, c, cand_h, again.get(c.name))
@@ -224,4 +254,4 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
         # effect (`refit_from_start`)
         cf = refit_from_start(start, cf, cand_h, free, s, c, sizes, runs,
                               progress)
-    return judge(fit, free, runs, diag, [(s, c, cand_h, sizes, cf)], progress)
+    return (*judge(fit, free, runs, diag, [(s, c, cand_h, sizes, cf)], progress), cf)

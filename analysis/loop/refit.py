@@ -245,7 +245,8 @@ def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
                max_nfev: int = MAX_NFEV) -> Fit:
     """`refit` of the free parameters `names`, each at its size and within its bounds: a
     candidate's parameter (`candidates`, keyed by parameter) by its physics, the dead
-    band within DEAD_BAND_BOUNDS, every other constant within 1/50 to 50 times its value."""
+    band within DEAD_BAND_BOUNDS, every other constant within 1/50 to 50 times its value
+    (of its sign)."""
     scales, bounds = [], []
     for n in names:
         if n in candidates:
@@ -256,9 +257,11 @@ def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
             scales.append(max(abs(h.value(n)), DEAD_BAND_SCALE))
             bounds.append(DEAD_BAND_BOUNDS)
         else:
-            v = abs(h.value(n))
-            scales.append(v)
-            bounds.append((0.02 * v, 50.0 * v))
+            # signed: an effect added on an earlier step may be negative (a force offset of
+            # -4 kN), and bounds of |v| clipped it to +80 N at the start
+            v = h.value(n)
+            scales.append(abs(v))
+            bounds.append((min(0.02 * v, 50.0 * v), max(0.02 * v, 50.0 * v)))
     return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
 
 
