@@ -201,7 +201,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     if len(pair) == 2 and pair[0] in lone:
         members = [lone.get(n) or (*_scored(fit, data, naming, n), None) for n in pair]
         if not any(m[0].name in tried for m in members):
-            both, why = pair_step(fit, free, runs, members, progress)
+            both, why = pair_step(fit, free, runs, diag, members, progress)
             refused.extend(why)
             return both, refused, None
     return None, refused, None

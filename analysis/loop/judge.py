@@ -33,6 +33,7 @@ MIN_DROP = 0.02  # of the residual sum of squares
 # the effect is below what this sensor resolves (a 29 N/(m/s)² orifice term on a clean
 # campaign cut 1.39 -> 1.22 x noise, 0.66 σ)
 MIN_EXPLAINED = 1.0
+WITHOUT_NFEV = 15  # evaluations of the model without a candidate, refitted from its fit
 
 
 def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
@@ -123,7 +124,7 @@ def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
     fold refits: an unconverged refit only makes the check more lenient.
     """
     h = cf.hypothesis.with_values({name: 0.0})
-    return refit_free(h, data, free, {}, max_nfev=15)
+    return refit_free(h, data, free, {}, max_nfev=WITHOUT_NFEV)
 
 
 def own_parameters(fit: Fit, name: str) -> set[str]:

@@ -19,24 +19,23 @@ from collections.abc import Callable, Sequence
 
 from analysis.loop.candidate_fit import both_ways, equation_error_start, race
 from analysis.loop.candidates import Candidate
-from analysis.loop.evidence import diagnose_fit
-from analysis.loop.judge import MIN_DROP, make_step, own_parameters, why_refused
+from analysis.loop.evidence import Diagnosis, diagnose_fit
+from analysis.loop.judge import MIN_DROP, WITHOUT_NFEV, make_step, own_parameters, why_refused
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free
 from analysis.loop.result import Step
 from analysis.loop.runs import LoopRun, diverging_runs
 from analysis.loop.validation import held_out
 
-WITHOUT_NFEV = 15  # evaluations of each member's removal refit, as `judge._without`
 
-
-def pair_step(fit: Fit, free: list[str], runs: Sequence[LoopRun],
+def pair_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
               members: Sequence[tuple[Score, Candidate, Hypothesis, Fit | None]],
               progress: Callable[[str], None]
               ) -> tuple[tuple[tuple[Step, Step], Fit] | None, list[dict[str, object]]]:
     """The two `members` (score, candidate, hypothesis with it, its lone refit or None)
-    refitted together and judged: ((step, step), fit with both) or None, and the refusals."""
+    refitted together and judged (`diag`: the diagnosis of `fit`): ((step, step), fit with
+    both) or None, and the refusals."""
     data = [r.data for r in runs]
-    (sa, ca, ha, fa), (sb, cb, hb, fb) = members
+    (sa, ca, _, fa), (sb, cb, _, fb) = members
     label = f"{ca.name} with {cb.name}"
     progress(f"loop: refitting with {label} together")
     model, _ = ca.add_to(cb.add_to(fit.hypothesis.model)[0])
@@ -80,7 +79,7 @@ def pair_step(fit: Fit, free: list[str], runs: Sequence[LoopRun],
     # on top of it
     with_a, held_a = alone[sb.name][0], alone[sa.name][1]
     held_b = alone[sb.name][1]
-    first = make_step(diagnose_fit(fit, runs), sa, ca, fit, with_a, held_a, runs)
+    first = make_step(diag, sa, ca, fit, with_a, held_a, runs)
     second = make_step(diagnose_fit(with_a, runs), sb, cb, with_a, both, held_b, runs)
     return ((first, second), both), []
 
