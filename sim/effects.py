@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.model.isolator import IsolatorModel, Term
+from analysis.model.terms import kind as term_kind
 from rig.errors import ConfigError
 
 
@@ -55,7 +56,7 @@ EFFECTS: dict[str, EffectKind] = {
                    "viscosity falls as the fluid heats from the energy the damper dissipates",
                    "thermal_damper", "c_T", (0.8, 600.0)),
         EffectKind("hysteresis", "N/m", "Bouc–Wen rate-independent hysteresis of the seals",
-                   "bouc_wen", "k_h", (60.0, 20.0)),
+                   "bouc_wen", "k_h", (60.0, 20.0, 1.0)),
         EffectKind("sensor_delay", "s", "the mass sensor lags the table sensor"),
         EffectKind("sensor_gain", "1", "scale error of the mass sensor: x_meas = (1 + g) x"),
     )
@@ -92,6 +93,12 @@ def parse_effect(spec: str) -> Effect:
         raise ConfigError("--effect", name, f"must be finite, got {rest!r}")
     kind = EFFECTS[name]
     shape = tuple(numbers[1:]) or kind.shape_defaults
+    if kind.term_kind and len(shape) < len(kind.shape_defaults):
+        # a spec written before a shape constant existed (a Bouc–Wen a, b without n)
+        names = term_kind(kind.term_kind).shape_names
+        optional = dict(term_kind(kind.term_kind).optional_shapes)
+        if all(n in optional for n in names[len(shape):]):
+            shape += tuple(optional[n] for n in names[len(shape):])
     if len(shape) != len(kind.shape_defaults):
         raise ConfigError("--effect", name, f"takes {len(kind.shape_defaults)} shape constants "
                                             f"after the value, got {len(numbers) - 1}")

@@ -11,6 +11,8 @@ friction, measured), so 3 % leaves room for the input estimate's error.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 from scipy.signal import savgol_filter
 
@@ -252,3 +254,22 @@ def test_an_effect_added_earlier_keeps_its_sign_when_refitted_without_its_candid
     fit = refit_free(h, data, ["k1", param], {}, max_nfev=3)
     # the truth is the start: a few steps stay near it (within its 1 % noise-free error)
     assert fit.param(param)[0] == pytest.approx(-400.0, rel=0.05)
+
+
+def test_runs_recorded_each_from_rest_are_predicted_each_from_zero_state():
+    """`Hypothesis.fresh_states`: each run starts with the seals unloaded (Bouc–Wen r = 0),
+    as when every run was recorded on its own, not with the r the run before left. Run
+    B of a campaign is then predicted as B alone; carried over from A, it is not."""
+    import numpy as np
+
+    from analysis.loop.candidates import CANDIDATES
+    from analysis.loop.refit import Hypothesis, predict
+
+    data = [r.data for r in campaign(seed=3)]
+    model, param = CANDIDATES["hysteresis"].add_to(report_model("average"))
+    h = Hypothesis(model).with_values({param: 2.0e5})  # 2.5 kN at the 12.5 mm yield
+    alone = predict(h, data[1:2])[0]
+    fresh = predict(replace(h, fresh_states=True), data[:2])[1]
+    carried = predict(h, data[:2])[1]
+    np.testing.assert_allclose(fresh, alone, rtol=0, atol=1e-12)
+    assert np.max(np.abs(carried - alone)) > 10 * data[1].sigma_x  # the state A left shows

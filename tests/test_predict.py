@@ -127,7 +127,7 @@ def every_kind_model() -> IsolatorModel:
     base = report_model("average")
     return base.with_terms(
         Term("cubic_spring", "k3", 8.2e5), Term("quadratic_damper", "c_q", 284.0),
-        Term("bouc_wen", "k_h", 7400.0, (60.0, 20.0)),
+        Term("bouc_wen", "k_h", 7400.0, (60.0, 20.0, 1.0)),
         Term("thermal_damper", "c_T", -400.0, (0.8, 5.0)),
         Term("extension_damper", "c_ext", 560.0, gated=True),  # not its kind's default
         Term("force_offset", "F0", -12.5), Term("compression_spring", "k_comp", 1e4))
@@ -140,7 +140,8 @@ def test_every_kind_shape_and_gate_survives_the_round_trip():
     block = json.loads(json.dumps(model_json(model, names, cov, 0.01, 0.002, "test")))
     got = model_from_json(block)
     assert got.model == model
-    assert got.model.term("c_ext").gated is True and got.model.term("k_h").shape == (60.0, 20.0)
+    assert got.model.term("c_ext").gated is True
+    assert got.model.term("k_h").shape == (60.0, 20.0, 1.0)
     assert got.names == names and np.array_equal(got.covariance, cov)
     assert (got.sensor_gain, got.sensor_delay, got.source) == (0.01, 0.002, "test")
 

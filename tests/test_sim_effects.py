@@ -36,7 +36,7 @@ def test_the_catalogue_is_the_loops_list():
 def test_parse_effect_reads_value_and_shape():
     e = parse_effect("thermal_damping_drift=-300,1.5,120")
     assert e == Effect("thermal_damping_drift", -300.0, (1.5, 120.0))
-    assert parse_effect("hysteresis=2e4").shape == (60.0, 20.0)  # the defaults
+    assert parse_effect("hysteresis=2e4").shape == (60.0, 20.0, 1.0)  # the defaults
     assert parse_effect(" coulomb_friction=150").value == 150.0
 
 
@@ -45,7 +45,7 @@ def test_parse_effect_reads_value_and_shape():
     ("coulomb_friction", "needs a magnitude in N"),
     ("coulomb_friction=abc", "not a number"),
     ("coulomb_friction=nan", "must be finite"),
-    ("hysteresis=1,2", "takes 2 shape constants"),
+    ("hysteresis=1,2", "takes 3 shape constants"),
 ])
 def test_bad_effect_specs_are_named(spec, message):
     with pytest.raises(ConfigError, match=message):
@@ -122,3 +122,8 @@ def test_generate_cli_writes_one_csv_per_run(tmp_path, capsys):
     assert "not recorded" in out.err
     assert main(["generate", "--effect", "stiction=1", "--out", str(tmp_path)]) == 2
     assert "unknown effect" in capsys.readouterr().err
+
+
+def test_a_hysteresis_spec_without_its_exponent_has_n_1():
+    """`hysteresis=VALUE,a,b` as written before the Bouc–Wen exponent existed."""
+    assert parse_effect("hysteresis=2e4,60,20").shape == (60.0, 20.0, 1.0)

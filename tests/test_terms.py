@@ -7,8 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from analysis.identify.regressors import state_after
 from analysis.model.isolator import IsolatorModel, Term
-from analysis.model.terms import KINDS, basis, kind
+from analysis.model.model_json import model_from_json, model_json
+from analysis.model.terms import BOUC_WEN, KINDS, basis, kind
 from analysis.simulate import simulate, simulate_batch
 from rig.profile import Profile, Segment
 
@@ -55,7 +57,7 @@ def test_stateful_hysteresis_term_runs_in_the_same_simulator():
     """A Bouc–Wen term added to a linear isolator: the force–displacement loop opens."""
     base = IsolatorModel(mass=2721.55, terms=(Term("linear_spring", "k1", 7.0e4),
                                               Term("linear_damper", "c1", 3.0e3)))
-    hyst = base.with_terms(Term("bouc_wen", "kh", 2.0e4, (60.0, 20.0)))
+    hyst = base.with_terms(Term("bouc_wen", "kh", 2.0e4, (60.0, 20.0, 1.0)))
     motion = Profile("pulse", (Segment(0.1), Segment(0.12, 0.14), Segment(0.12, 0.0),
                                Segment(1.5))).motion()
     r = simulate(hyst, motion)
@@ -127,3 +129,28 @@ def test_initial_state_carries_a_warm_fluid_into_the_run():
     np.testing.assert_array_equal(batch.z[1], warm.z)
     with pytest.raises(ValueError, match="initial states have shape"):
         simulate(base, motion, s0=[1.0])
+
+
+@pytest.mark.parametrize("n", [1.0, 2.0, 3.0])
+def test_a_bouc_wen_loop_yields_at_its_exponents_root(n):
+    """r' = ż − a|ż||r|ⁿ⁻¹r − b ż|r|ⁿ: driven one way, r rises with slope 1 and levels
+    off at the yield (a + b)^(−1/n), sharper the larger n (a seal that yields at once)."""
+    y = 2.0e-3
+    a, b = 0.7 / y**n, 0.3 / y**n
+    dt, zd = 1e-4, np.full(20000, 0.1)  # 0.2 m one way at 0.1 m/s
+    assert state_after(BOUC_WEN, (a, b, n), zd, dt, 0.0) == pytest.approx(y, rel=1e-3)
+    # at a tenth of the yield the seal is nearly elastic, dr/dz = 1 − (r/y)ⁿ: r/z ≈
+    # 1 − 0.1ⁿ/(n + 1), the more so the larger n
+    k = round(0.1 * y / (0.1 * dt))
+    r_tenth = state_after(BOUC_WEN, (a, b, n), zd[:k], dt, 0.0)
+    assert r_tenth / (0.1 * y) == pytest.approx(1 - 0.1**n / (n + 1), abs=0.005)
+
+
+def test_a_model_written_before_the_exponent_reads_as_n_1():
+    """A Bouc–Wen term saved with a and b only (the kind had no n) reads back with n = 1."""
+    model = IsolatorModel(mass=2721.55, terms=(Term("linear_spring", "k1", 7.0e4),
+                                               Term("bouc_wen", "k_h", 2.0e4,
+                                                    (60.0, 20.0, 1.0))))
+    block = model_json(model)
+    del block["terms"][1]["shape"]["n"]
+    assert model_from_json(block).model == model

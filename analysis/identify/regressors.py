@@ -20,6 +20,11 @@ from numba import njit
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import basis, kind, state_rate
 
+# numba caches this module's compiled code against this file alone, and terms.basis
+# and terms.state_rate are compiled into it: a change to them (the Bouc–Wen exponent)
+# bumps this, or a cached kernel runs the old formula
+TERMS_REVISION = 2
+
 
 def regressor_matrix(model: IsolatorModel, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
     """Z (n, J): each term's basis at every sample, with the model's dead band and shapes."""

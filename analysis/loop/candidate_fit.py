@@ -18,6 +18,7 @@ Whether the best refit is kept is `judge`'s to decide.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -109,12 +110,18 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
         # (`reidentify`): the base fit's compromise never seen. The dead band is refitted
         # from there too: a base fit that closed it to mimic a dry friction cannot
         # open it again otherwise
-        h0 = Hypothesis(again.model, cand_h.sensor_gain, cand_h.sensor_delay)
+        h0 = replace(cand_h, model=again.model)
         # the terms of Eq 10 are those the identification with the candidate finds: a
         # k2 tanh(αz) the base fit closed may come back beside a cubic spring
         own = list(dict.fromkeys([*constants_present(again.model),
                                   *(n for n in names if n not in BASE_FREE), "delta"]))
         entries += [(h0, n) for n in _unique([own, _held(own)])]
+    if c.term_kind and kind(c.term_kind).has_state:
+        # the runs may each have been recorded from a fresh state (seals unloaded, fluid
+        # cool): on unseen campaigns so made, a Bouc–Wen loop of the right shape fitted
+        # at 5.7 x noise carried over from run to run, at 1.00 x started afresh
+        entries += [(replace(h0, fresh_states=not h0.fresh_states), n)
+                    for h0, n in [(h0, names) for h0 in first] + entries]
     sizes = _starts(cand_h, data, s, c)
     entries += [(cand_h.with_values({s.name: v}), names) for v in sizes]
     entries += [(h0, names) for h0 in _split_starts(cand_h, s.name, c)]

@@ -215,7 +215,7 @@ def _scored(fit: Fit, data: Sequence[RunData], naming: Naming, name: str
     c = CANDIDATES[name].shaped(naming.shapes[name]) if name in naming.shapes else \
         CANDIDATES[name]
     ch, param = c.add_to(h.model)
-    cand_h = Hypothesis(ch, h.sensor_gain, h.sensor_delay)
+    cand_h = replace(h, model=ch)
     return score(fit, data, cand_h, param, c.typical(h.model), c.sign), c, cand_h
 
 

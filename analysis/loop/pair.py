@@ -16,6 +16,7 @@ predicting held-out runs better. Both pass, or neither is named.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 from analysis.loop.candidate_fit import both_ways, equation_error_start, race
 from analysis.loop.candidates import Candidate
@@ -39,7 +40,7 @@ def pair_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     label = f"{ca.name} with {cb.name}"
     progress(f"loop: refitting with {label} together")
     model, _ = ca.add_to(cb.add_to(fit.hypothesis.model)[0])
-    h = Hypothesis(model, fit.hypothesis.sensor_gain, fit.hypothesis.sensor_delay)
+    h = replace(fit.hypothesis, model=model)
     cands = {sa.name: ca, sb.name: cb}
     names = list(dict.fromkeys(free + [sa.name, sb.name] + ca.shape_parameters(model)
                                + cb.shape_parameters(model)))
@@ -47,9 +48,11 @@ def pair_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     starts = [h.with_values(sizes)]
     for lone in (fa, fb):
         if lone is not None:  # a lone refit's constants, the other member at its size
-            starts.append(h.with_values({**dict(zip(lone.names, lone.values.tolist())),
-                                         **{n: v for n, v in sizes.items()
-                                            if n not in lone.names}}))
+            # (and its runs' states: carried over, or each run started afresh)
+            h_lone = replace(h, fresh_states=lone.hypothesis.fresh_states)
+            starts.append(h_lone.with_values({**dict(zip(lone.names, lone.values.tolist())),
+                                              **{n: v for n, v in sizes.items()
+                                                 if n not in lone.names}}))
     starts += equation_error_start(h.with_values(sizes), runs, cands)
     both = race(both_ways(starts, names), runs, cands)
     if away := diverging_runs(both, runs):

@@ -50,6 +50,9 @@ class Hypothesis:
     model: IsolatorModel
     sensor_gain: float = 0.0  # g, 1
     sensor_delay: float = 0.0  # d, s
+    # each run starts with the terms' internal states (Bouc–Wen r, fluid θ) at zero, as
+    # after a long rest or a re-zeroed rig, rather than where the run before left them
+    fresh_states: bool = False
 
     def value(self, name: str) -> float:
         if name in SENSOR_PARAMETERS:
@@ -87,9 +90,9 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
         # each row starts at rest where its own sensor map says the mass was
         x = np.empty((V.shape[0], run.t.size))
         starts = np.array([start_state(run, g, h.model.dead_band) for g in gain])
-        if z_end is not None:
-            for j, (a, b) in hysteretic:  # the seals follow the mass's settling between runs
-                S0[:, j] = hysteresis_along(S0[:, j], z_end, starts[:, 0], a, b)
+        if z_end is not None and not h.fresh_states:
+            for j, shape in hysteretic:  # the seals follow the mass's settling between runs
+                S0[:, j] = hysteresis_along(S0[:, j], z_end, starts[:, 0], shape)
         zd_all = np.empty_like(x)
         for z0, zd0 in np.unique(starts, axis=0):
             rows_z0 = np.all(starts == (z0, zd0), axis=1)
@@ -99,10 +102,12 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
             zd_all[rows_z0] = b.zd
         out.append(np.stack([(1.0 + g) * np.interp(run.t - d, run.t, xr)
                              for g, d, xr in zip(gain, delay, x)]))
+        if h.fresh_states:
+            continue  # the next run starts from zero whatever this one left
         for j, (heating, tau) in thermal:
             S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
-        for j, (a, b) in hysteretic:  # the seals stay loaded while the mass rests
-            S0[:, j] = hysteresis_after(S0[:, j], zd_all, run.dt, a, b)
+        for j, shape in hysteretic:  # the seals stay loaded while the mass rests
+            S0[:, j] = hysteresis_after(S0[:, j], zd_all, run.dt, shape)
         z_end = x[:, -1] - run.motion(run.t[-1])
         if hysteretic:  # the mass swings on after the run is cut: follow it to rest
             z_end = _settle(h, V, S0, hysteretic, z_end, zd_all[:, -1],
@@ -133,22 +138,24 @@ def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.
     settled = simulate_runs(h.model, setups, [V[r:r + 1] for r in rows],
                             s0=[S0[r:r + 1] for r in rows])
     for r, b in zip(rows, settled):
-        for j, (a, bb) in hysteretic:
-            S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, a, bb)[0]
+        for j, shape in hysteretic:
+            S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, shape)[0]
         z_rest[r] = b.z[0, -1]
     return z_rest
 
 
-def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray, a: float, b: float,
-                     steps: int = 200) -> np.ndarray:
+def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray,
+                     shape: tuple[float, float, float], steps: int = 200) -> np.ndarray:
     """Bouc–Wen r after the mass moved straight from z_from to z_to (rows), e.g. settling
-    between runs: dr/dz = 1 − a sgn(dz) r − b |r|, by RK4 in z."""
+    between runs: dr/dz = 1 − a sgn(dz) |r|ⁿ⁻¹ r − b |r|ⁿ, by RK4 in z."""
+    a, b, n = shape
     r = np.array(r0, float)
     h = (np.asarray(z_to, float) - np.asarray(z_from, float)) / steps
     sd = np.sign(h)
 
     def f(r):
-        return 1.0 - a * sd * r - b * np.abs(r)
+        rn = np.abs(r) ** n
+        return 1.0 - a * sd * np.sign(r) * rn - b * rn
 
     for _ in range(steps):
         k1 = f(r)
@@ -158,13 +165,13 @@ def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray, a: fl
     return r
 
 
-def hysteresis_after(r0: np.ndarray, zd: np.ndarray, dt: float, a: float, b: float
-                     ) -> np.ndarray:
-    """Bouc–Wen r at the end of a run, r' = ż − a|ż|r − b ż|r| along the sampled ż (R, n).
+def hysteresis_after(r0: np.ndarray, zd: np.ndarray, dt: float,
+                     shape: tuple[float, float, float]) -> np.ndarray:
+    """Bouc–Wen r at the end of a run along the sampled ż (R, n).
 
     r does not relax at rest, so a run starts with the state the last one left.
     """
-    return np.array([state_after(BOUC_WEN, (a, b), row, dt, r) for r, row in zip(r0, zd)])
+    return np.array([state_after(BOUC_WEN, shape, row, dt, r) for r, row in zip(r0, zd)])
 
 
 def fluid_temperature_after(theta0: np.ndarray, zd: np.ndarray, dt: float, heating: float,

@@ -107,6 +107,9 @@ def format_loop(result: LoopResult, units: str = "us") -> str:
         lines.extend("    " + row for row in _error_rows(s.error_before, s.error_after, units))
     if not result.steps:
         lines.append("  no candidate effect was significant")
+    if result.final.hypothesis.fresh_states:
+        lines.append("  each run fitted from rest with the seals unloaded and the fluid cool "
+                     "(fits better than the state carried from the run before)")
     for c in result.indistinguishable:
         lines.append(f"  not testable with these runs: {c.candidate} — "
                      f"{100 * (1 - c.unique_fraction):.2f} % of its force pattern is the "
@@ -194,7 +197,8 @@ def loop_model_json(loop: LoopResult) -> dict:
     f, h = loop.final, loop.final.hypothesis
     added = ", ".join(loop.effects_added) or "none"
     return model_json(h.model, f.names, covariance_from(f.std, f.correlation), h.sensor_gain,
-                      h.sensor_delay, source=f"closed loop, effects added: {added}")
+                      h.sensor_delay, source=f"closed loop, effects added: {added}",
+                      states_reset_each_run=h.fresh_states)
 
 
 def merged_parameters(base: dict[str, Estimate], loop: dict[str, dict]) -> dict[str, Estimate]:

@@ -58,6 +58,9 @@ class IdentifiedModel:
     sensor_gain: float = 0.0  # g of x_meas = (1 + g) x(t − d), 1
     sensor_delay: float = 0.0  # d, s
     source: str = ""
+    # the runs were fitted with each starting from zero internal state (Bouc–Wen r,
+    # fluid θ) rather than the state the run before left
+    states_reset_each_run: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.names)
@@ -83,7 +86,8 @@ def covariance_from(std: ArrayLike, correlation: ArrayLike) -> np.ndarray:
 
 def model_json(model: IsolatorModel, names: Sequence[str] = (),
                covariance: ArrayLike | None = None, sensor_gain: float = 0.0,
-               sensor_delay: float = 0.0, source: str = "") -> dict:
+               sensor_delay: float = 0.0, source: str = "",
+               states_reset_each_run: bool = False) -> dict:
     """The block for `model`; `covariance` (J, J) SI over `names`.
 
     A constant whose variance is not finite (the data did not determine it) is left
@@ -105,6 +109,7 @@ def model_json(model: IsolatorModel, names: Sequence[str] = (),
         "shape_units": dict(zip(kind(t.kind).shape_names, kind(t.kind).shape_units)),
         "gated_by_dead_band": t.is_gated} for t in model.terms]
     block["sensor"] = {"gain": float(sensor_gain), "delay": float(sensor_delay)}
+    block["states_reset_each_run"] = bool(states_reset_each_run)
     block["covariance"] = {"names": [names[i] for i in keep], "matrix": cov.tolist()}
     return block
 
@@ -131,8 +136,13 @@ def model_from_json(doc: dict) -> IdentifiedModel:
         raise DataError(f"fit JSON {MODEL_KEY}: {e}") from None
     _require(block["sensor"], ("gain", "delay"), f"{MODEL_KEY}.sensor")
     names, cov = _covariance(block["covariance"], model)
+    reset = block.get("states_reset_each_run", False)  # absent: written before it was
+    if not isinstance(reset, bool):
+        raise DataError(f"fit JSON {MODEL_KEY}.states_reset_each_run is {reset!r}, "
+                        "not true/false")
     return IdentifiedModel(model, names, cov, _number(block["sensor"], "gain"),
-                           _number(block["sensor"], "delay"), str(block.get("source", "")))
+                           _number(block["sensor"], "delay"), str(block.get("source", "")),
+                           reset)
 
 
 def _term(t: object, i: int) -> Term:
@@ -145,6 +155,8 @@ def _term(t: object, i: int) -> Term:
     except KeyError as e:
         raise DataError(f"fit JSON {where}: {e.args[0]}") from None
     shape = t["shape"]
+    if isinstance(shape, dict):
+        shape = {**{n: v for n, v in k.optional_shapes if n not in shape}, **shape}
     if not isinstance(shape, dict) or set(shape) != set(k.shape_names):
         raise DataError(f"fit JSON {where}.shape is {shape!r}, kind {k.name} needs "
                         f"{list(k.shape_names)}")

@@ -40,6 +40,9 @@ THERMAL_DAMPER = 12
 MAX_SHAPE = 3  # shape constants per term in the kernel's parameter layout
 
 
+# basis and state_rate are compiled into the cached code of simulate/kernel.py and
+# identify/regressors.py, which numba checks against those files only: a change here
+# bumps TERMS_REVISION in both
 @njit(cache=True, inline="always")
 def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
           a: float, b: float, c: float) -> float:
@@ -83,8 +86,12 @@ def state_rate(kind: int, z: float, zd: float, s: float, coef: float,
                a: float, b: float, c: float) -> float:
     """Time derivative of a term's internal state (0 for stateless kinds)."""
     if kind == BOUC_WEN:
-        # Bouc–Wen with n = 1: r' = ż − a|ż| r − b ż |r|  (r in m, a and b in 1/m)
-        return zd - a * abs(zd) * s - b * zd * abs(s)
+        # Bouc–Wen: r' = ż − a|ż| |r|^(n−1) r − b ż |r|^n  (r in m, a and b in 1/m^n, n ≥ 1);
+        # r saturates at (a + b)^(−1/n), the yield displacement
+        if c == 1.0:
+            return zd - a * abs(zd) * s - b * zd * abs(s)
+        rn = abs(s) ** c
+        return zd - a * abs(zd) * (rn if s > 0.0 else -rn) - b * zd * rn
     if kind == THERMAL_DAMPER:
         # fluid temperature rise θ (K): heated by the viscous power a ż² (a = c/C_th, in
         # K s/m²), cooled through the casing with time constant b (s)
@@ -106,6 +113,9 @@ class TermKind:
     switches_on: str = ""  # "z" or "zd": the basis jumps where that variable changes sign
     has_state: bool = False
     meaning: str = ""
+    # shape constants a model written before they existed may lack, with the value that
+    # reads it as it was meant (a Bouc–Wen loop written with a and b only had n = 1)
+    optional_shapes: tuple[tuple[str, float], ...] = ()
 
 
 KINDS: dict[str, TermKind] = {
@@ -128,8 +138,9 @@ KINDS: dict[str, TermKind] = {
         TermKind("quadratic_damper", QUADRATIC_DAMPER, "c ż|ż|", "N/(m/s)^2",
                  meaning="turbulent orifice flow"),
         TermKind("force_offset", FORCE_OFFSET, "F₀", "N", meaning="constant force offset"),
-        TermKind("bouc_wen", BOUC_WEN, "k r, r' = ż − a|ż|r − b ż|r|", "N/m", ("a", "b"),
-                 ("1/m", "1/m"), has_state=True, meaning="rate-independent hysteresis"),
+        TermKind("bouc_wen", BOUC_WEN, "k r, r' = ż − a|ż||r|ⁿ⁻¹r − b ż|r|ⁿ", "N/m",
+                 ("a", "b", "n"), ("1/m^n", "1/m^n", "1"), has_state=True,
+                 meaning="rate-independent hysteresis", optional_shapes=(("n", 1.0),)),
         TermKind("compression_spring", COMPRESSION_SPRING, "k max(z, 0)", "N/m",
                  gated_by_dead_band=True,
                  meaning="extra stiffness in one direction: the rod displaces fluid only "

@@ -54,6 +54,11 @@ LAND_PIECE = 4.0  # steps: a motion whose pieces are longer on average is steppe
 # it at a third of the rig's).
 LEAVE_MARGIN = 1e-9
 
+# numba caches this module's compiled code against this file alone, and terms.basis
+# and terms.state_rate are compiled into it: a change to them (the Bouc–Wen exponent)
+# bumps this, or a cached kernel runs the old formula
+TERMS_REVISION = 2
+
 # event slots
 EV_BAND, EV_Z0, EV_ZD0, EV_STOP, EV_BREAKAWAY, EV_GRIP, EV_LEAVE = range(7)
 N_EVENTS = 7
