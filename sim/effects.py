@@ -95,10 +95,10 @@ def parse_effect(spec: str) -> Effect:
     shape = tuple(numbers[1:]) or kind.shape_defaults
     if kind.term_kind and len(shape) < len(kind.shape_defaults):
         # a spec written before a shape constant existed (a Bouc–Wen a, b without n)
-        names = term_kind(kind.term_kind).shape_names
-        optional = dict(term_kind(kind.term_kind).optional_shapes)
-        if all(n in optional for n in names[len(shape):]):
-            shape += tuple(optional[n] for n in names[len(shape):])
+        k = term_kind(kind.term_kind)
+        full = k.completed_shape(dict(zip(k.shape_names, shape)))
+        if len(full) == len(k.shape_names):
+            shape = tuple(full[n] for n in k.shape_names)
     if len(shape) != len(kind.shape_defaults):
         raise ConfigError("--effect", name, f"takes {len(kind.shape_defaults)} shape constants "
                                             f"after the value, got {len(numbers) - 1}")

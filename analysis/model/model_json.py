@@ -156,7 +156,7 @@ def _term(t: object, i: int) -> Term:
         raise DataError(f"fit JSON {where}: {e.args[0]}") from None
     shape = t["shape"]
     if isinstance(shape, dict):
-        shape = {**{n: v for n, v in k.optional_shapes if n not in shape}, **shape}
+        shape = k.completed_shape(shape)
     if not isinstance(shape, dict) or set(shape) != set(k.shape_names):
         raise DataError(f"fit JSON {where}.shape is {shape!r}, kind {k.name} needs "
                         f"{list(k.shape_names)}")

@@ -117,6 +117,10 @@ class TermKind:
     # reads it as it was meant (a Bouc–Wen loop written with a and b only had n = 1)
     optional_shapes: tuple[tuple[str, float], ...] = ()
 
+    def completed_shape(self, given: dict[str, float]) -> dict[str, float]:
+        """`given` shape constants by name, with the optional ones it lacks at theirs."""
+        return {**{n: v for n, v in self.optional_shapes if n not in given}, **given}
+
 
 KINDS: dict[str, TermKind] = {
     k.name: k
