@@ -8,7 +8,8 @@ check that the loop named the effect that was injected.
 An effect is either a force term added to the isolator model (same registry as
 the fitted model, `analysis.model.terms`) or a distortion of the mass sensor.
 Magnitudes are SI; `spec` strings look like ``coulomb_friction=150`` or
-``thermal_damping_drift=-400,0.8,600`` (value, then the shape constants).
+``thermal_damping_drift=-400,0.8,600,0.5`` (value, then the shape constants; those
+at the end a term may leave out take their defaults).
 """
 
 from __future__ import annotations
@@ -51,10 +52,11 @@ EFFECTS: dict[str, EffectKind] = {
         EffectKind("force_offset", "N", "a constant force: a tilted track or a load-cell zero",
                    "force_offset", "F0"),
         # heating 0.8 K s/m²: c1 ≈ 6 kN/(m/s) into ~7.5 kJ/K of fluid and casing;
-        # 600 s: a warm casing cools over minutes (the report's run C)
+        # 600 s: a warm casing cools over minutes (the report's run C); no θ_max (0): the
+        # drift does not stop within a campaign
         EffectKind("thermal_damping_drift", "N/(m/s)/K",
                    "viscosity falls as the fluid heats from the energy the damper dissipates",
-                   "thermal_damper", "c_T", (0.8, 600.0)),
+                   "thermal_damper", "c_T", (0.8, 600.0, 0.0)),
         EffectKind("hysteresis", "N/m", "Bouc–Wen rate-independent hysteresis of the seals",
                    "bouc_wen", "k_h", (60.0, 20.0, 1.0)),
         EffectKind("sensor_delay", "s", "the mass sensor lags the table sensor"),

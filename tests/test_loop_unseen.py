@@ -93,6 +93,27 @@ def test_two_unseen_effects_are_named_together(tmp_path):
     assert doc["parameters"]["k3"]["value"] == pytest.approx(truth["hardening"]["k3"], rel=0.3)
 
 
+def test_a_thermal_drift_down_to_a_floor_is_named_with_its_cooling_time_and_limit(tmp_path):
+    """Seed 705: the generator's damping falls as c1 (1 − κT) down to a floor of 5 % of
+    c1, its fluid heated by c1 ż²/C and cooled in 4.7 s: a dominant drift (29 % of the
+    peak force) that reaches the floor within a run. Without a limit the library's
+    drift runs the mass away where the damping would cross zero, and the loop ended at
+    58 x noise. With θ_max placed by the data and refitted, the heat capacity the
+    library cannot see (its heating is held) leaves the cooling time and the damping
+    lost at the floor to compare with the generator's."""
+    doc = _fit(705, ("thermal",), tmp_path)
+    assert doc["effects_added"] == ["thermal_damping_drift"]
+    assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01
+    assert doc["unexplained"]["value"] is False
+    truth = gen.make_campaign(705, ("thermal",))
+    e, c1 = truth.effects[0], truth.constants["c1"]
+    p = doc["parameters"]
+    assert p["c_T.tau"]["value"] == pytest.approx(e["tau_T"], rel=0.05)  # 4.699 s vs 4.702
+    # at the floor the damping has lost 95 % of c1: c_T θ_max = −0.95 c1 (−6291 N s/m both)
+    lost = p["c_T"]["value"] * p["c_T.theta_max"]["value"]
+    assert lost == pytest.approx(-0.95 * c1, rel=0.05)
+
+
 def test_a_lagged_servo_leaves_every_interval_finite(tmp_path):
     """Seed 1205's servo lag is fitted with a 0.7 ms ramp at a corner, shorter than a
     sample: no sample of u sees its duration, and propagating its undetermined variance

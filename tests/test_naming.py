@@ -17,8 +17,11 @@ import pytest
 
 from analysis.loop import LoopRun
 from analysis.loop.candidates import yield_stiffness
-from analysis.loop.naming import BIC_MARGIN, name_effects
+from analysis.loop.naming import BIC_MARGIN, fluid_temperature_peak, name_effects
+from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
+from analysis.simulate import simulate
+from rig.profile import Profile, Segment
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ is not installed
 from bench.unseen.generator import EFFECTS, MASS, make_campaign
@@ -99,3 +102,22 @@ def test_a_gain_the_base_fit_bent_its_springs_for_is_still_named_first(tmp_path)
     assert naming.order[:1] == ("sensor_gain",), naming.first
     falls = sorted(naming.first.values(), reverse=True)
     assert falls[0] - falls[1] > 3 * BIC_MARGIN
+
+
+def test_the_fluid_temperature_a_drift_may_stop_at_is_placed_by_the_measured_motion():
+    """θ_max is tried at fractions of the peak θ the runs heat the fluid to: that peak,
+    from ż alone, is the simulator's θ, the fluid carried warm from run to run."""
+    model = report_model("average").with_terms(
+        Term("thermal_damper", "c_T", -400.0, (0.8, 3.0)))
+    motion = Profile("pulse", (Segment(0.1), Segment(0.12, 0.14), Segment(0.12, 0.0),
+                               Segment(2.0))).motion()
+    first = simulate(model, motion)
+    second = simulate(model, motion, s0=[0.0] * (len(model.terms) - 1)
+                      + [float(first.states["c_T"][-1])])
+    peak = max(first.states["c_T"].max(), second.states["c_T"].max())
+    assert peak > 0.05
+    dt = float(first.t[1] - first.t[0])
+    assert fluid_temperature_peak([first.zd, second.zd], dt, 0.8, 3.0) == \
+        pytest.approx(peak, rel=0.01)
+    # a second run that started cool would peak lower: the carry is what is measured
+    assert fluid_temperature_peak([second.zd], dt, 0.8, 3.0) < 0.99 * peak

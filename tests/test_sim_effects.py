@@ -35,7 +35,8 @@ def test_the_catalogue_is_the_loops_list():
 
 def test_parse_effect_reads_value_and_shape():
     e = parse_effect("thermal_damping_drift=-300,1.5,120")
-    assert e == Effect("thermal_damping_drift", -300.0, (1.5, 120.0))
+    assert e == Effect("thermal_damping_drift", -300.0, (1.5, 120.0, 0.0))  # no θ_max
+    assert parse_effect("thermal_damping_drift=-300,1.5,120,0.2").shape == (1.5, 120.0, 0.2)
     assert parse_effect("hysteresis=2e4").shape == (60.0, 20.0, 1.0)  # the defaults
     assert parse_effect(" coulomb_friction=150").value == 150.0
 

@@ -110,6 +110,29 @@ def test_thermal_damper_heats_with_dissipation_and_cools_with_its_time_constant(
     np.testing.assert_allclose(r.forces["c_T"], -400.0 * theta * r.zd, atol=1e-9)
 
 
+def test_a_thermal_drift_stops_at_theta_max_while_the_fluid_heats_on():
+    """c_T min(θ, θ_max) ż: past θ_max the damping is the hot fluid's, and c1 + c_T θ
+    cannot cross zero into a damper that feeds the motion (an unseen drift whose
+    damping falls to a floor diverged in its third run without one)."""
+    base = IsolatorModel(mass=2721.55, terms=(Term("linear_spring", "k1", 7.0e4),
+                                              Term("linear_damper", "c1", 6.0e3)))
+    theta_max = 0.05
+    hot = base.with_terms(Term("thermal_damper", "c_T", -6.0e4, (0.8, 2.0, theta_max)))
+    motion = Profile("pulse", (Segment(0.1), Segment(0.12, 0.14), Segment(0.12, 0.0),
+                               Segment(2.0))).motion()
+    r = simulate(hot, motion)
+    theta = r.states["c_T"]
+    assert theta.max() > 2 * theta_max  # heated well past the limit ...
+    np.testing.assert_allclose(r.forces["c_T"], -6.0e4 * np.minimum(theta, theta_max) * r.zd,
+                               atol=1e-9)  # ... and the drift stopped there
+    assert np.all(np.isfinite(r.z)) and np.abs(r.z).max() < 0.5
+    # the same drift unlimited takes more damping than c1 and the mass runs away
+    free = base.with_terms(Term("thermal_damper", "c_T", -6.0e4, (0.8, 2.0)))
+    assert free.term("c_T").shape == (0.8, 2.0, 0.0)  # left out: no limit
+    runaway = simulate(free, motion)
+    assert not (np.all(np.isfinite(runaway.z)) and np.abs(runaway.z).max() < 0.5)
+
+
 def test_initial_state_carries_a_warm_fluid_into_the_run():
     """s0 sets θ at t0: a warm start damps less, and batch agrees with single."""
     base = IsolatorModel(mass=2721.55, terms=(Term("linear_spring", "k1", 7.0e4),

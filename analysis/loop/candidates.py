@@ -25,8 +25,10 @@ SENSOR_DELAY = "sensor_delay"
 SENSOR_PARAMETERS = (SENSOR_GAIN, SENSOR_DELAY)
 # The fluid heats by `a ż²` and cools with `tau`: a = c1/C_th with ~7.5 kJ/K of fluid and
 # casing; tau, minutes for a warm casing. Only a's product with c_T is seen, so a is held;
-# tau is chosen from THERMAL_SHAPES by equation error and refitted with c_T.
-THERMAL_SHAPE = (0.8, 600.0)  # K s/m², s
+# tau is chosen from THERMAL_SHAPES by equation error and refitted with c_T. A drift may
+# stop at θ_max (0: it does not): the damping thins to the hot fluid's and no further;
+# equation error places θ_max at fractions of the peak θ of the measured motion (`naming`).
+THERMAL_SHAPE = (0.8, 600.0, 0.0)  # K s/m², s, K (no limit)
 HYSTERESIS_SHAPE = (60.0, 20.0, 1.0)  # Bouc–Wen a, b in 1/m, n = 1: r saturates at 12.5 mm
 # What equation error tries: a small damper's oil cools in seconds, not minutes (a cooling
 # time of seconds drifts the damping within one run), and a seal's hysteresis yields within
@@ -37,7 +39,7 @@ HYSTERESIS_SHAPE = (60.0, 20.0, 1.0)  # Bouc–Wen a, b in 1/m, n = 1: r saturat
 # named in its place). Not shorter: cooled within half a
 # second, θ follows ż² and the drift is a cubic damping, whose column outscored a sensor
 # delay's on an unseen campaign; a yield of about a millimetre is a dry friction's
-THERMAL_SHAPES = tuple((THERMAL_SHAPE[0], b) for b in (1.5, 5.0, THERMAL_SHAPE[1]))
+THERMAL_SHAPES = tuple((THERMAL_SHAPE[0], b, 0.0) for b in (1.5, 5.0, THERMAL_SHAPE[1]))
 HYSTERESIS_SHAPES = tuple((0.75 / y**n, 0.25 / y**n, n) for n in (1.0, 2.0)
                           for y in (2.5e-3, 5e-3, 12.5e-3))
 HYSTERETIC_FORCE = 100.0  # N at the yield: as large as the report's breakaway force
@@ -94,6 +96,10 @@ class Candidate:
 
     def bounds(self, model: IsolatorModel) -> tuple[float, float]:
         big = 50.0 * self.typical(model)  # an effect 50 times "worth naming" is another model
+        if self.term_kind == "thermal_damper" and self.shape[2] > 0.0:
+            # a drift that stops at θ_max is bounded by the damping it can take away, c1
+            # (twice, for a refit that lowers θ_max), however steep it is per K on the way
+            big = max(big, 2.0 * abs(model.parameters().get("c1", 6.0e3)) / self.shape[2])
         return (0.0 if self.sign > 0 else -big, 0.0 if self.sign < 0 else big)
 
     def shaped(self, shape: tuple[float, ...]) -> Candidate:
@@ -109,8 +115,10 @@ class Candidate:
         if not self.free_shape or self.shape == CANDIDATES[self.name].shape:
             return []
         term = model.term(self.parameter)
-        return [q for q, n in zip(term.shape_names(), kind(term.kind).shape_names)
-                if n in self.free_shape]
+        # a limit at 0 is off (a thermal drift without a floor), and its basis jumps
+        # there: it stays off rather than being stepped across
+        return [q for q, n, v in zip(term.shape_names(), kind(term.kind).shape_names,
+                                     term.shape) if n in self.free_shape and v != 0.0]
 
     def add_to(self, model: IsolatorModel) -> tuple[IsolatorModel, str]:
         """The model with this effect at zero, and the name of the parameter to fit.
@@ -149,7 +157,7 @@ CANDIDATES: dict[str, Candidate] = {
         Candidate("thermal_damping_drift", "viscosity falls as the fluid heats from the energy "
                   "the damper dissipates: damping drifts down within and across runs",
                   "c_T", "N/(m/s)/K", "t", "thermal_damper", THERMAL_SHAPE, sign=-1,
-                  free_shape=("tau",), shapes=THERMAL_SHAPES),
+                  free_shape=("tau", "theta_max"), shapes=THERMAL_SHAPES),
         Candidate("hysteresis", "rate-independent hysteresis (Bouc–Wen) of seals and "
                   "mountings: two forces at one (z, ż)", "k_h", "N/m", "z", "bouc_wen",
                   HYSTERESIS_SHAPE, sign=+1, free_shape=("a", "b"), shapes=HYSTERESIS_SHAPES),

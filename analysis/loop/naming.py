@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import convolve1d, minimum_filter1d
-from scipy.signal import savgol_coeffs, savgol_filter
+from scipy.signal import lfilter, savgol_coeffs, savgol_filter
 
 from analysis.identify.pipeline import LINEAR
 from analysis.identify.regressors import campaign_regressors
@@ -49,6 +49,7 @@ MOVING = 5e-3  # m/s: slower, the mass may be held by static friction (in no col
 # room for what no column holds even on a right model (static friction, the smoothing)
 BIC_MARGIN = 10.0
 DELTA_GRID = np.linspace(0.0, 0.04, 41)  # m: the dead band searched with each candidate
+SATURATION_FRACTIONS = (0.25, 0.5)  # of the peak θ: where a thermal drift may stop
 
 
 @dataclass(frozen=True)
@@ -92,7 +93,7 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
     """Forward selection by BIC over the candidates not `present` (candidate names)."""
     samples = _samples(runs, model.mass, sensor_delay)
     model = _eq10_shapes(model, samples)
-    variants = _variants([n for n in CANDIDATES if n not in present])
+    variants = _variants([n for n in CANDIDATES if n not in present], samples)
     cols = _columns(model, samples, variants)
     base = [n for n in cols.fixed if n.startswith("base:")] + \
         [n for n in cols.gated if n.startswith("base:")]
@@ -125,7 +126,7 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
     return Naming(tuple(_name(c) for c in chosen), tuple(gains), first, delta, n, shapes)
 
 
-def _variants(names: Sequence[str]) -> dict[str, Candidate]:
+def _variants(names: Sequence[str], samples: _Samples) -> dict[str, Candidate]:
     """Each candidate under its own name, at the library's shape; one with other shapes
     to choose also under 'name@i' for each of them (its parameter renamed alike: one
     model holds them all while the columns are built). Only those count a shape in BIC:
@@ -133,10 +134,38 @@ def _variants(names: Sequence[str]) -> dict[str, Candidate]:
     out: dict[str, Candidate] = {}
     for name in names:
         c = out[name] = CANDIDATES[name]
-        for i, shape in enumerate(c.shapes):
+        shapes = list(c.shapes)
+        if c.term_kind == "thermal_damper":
+            shapes += _saturated(c.shapes, samples)
+        for i, shape in enumerate(shapes):
             if tuple(shape) != c.shape:
                 out[f"{name}@{i}"] = replace(c.shaped(shape), parameter=f"{c.parameter}@{i}")
     return out
+
+
+def _saturated(shapes: Sequence[tuple[float, ...]], samples: _Samples
+               ) -> list[tuple[float, ...]]:
+    """Each thermal shape again with its drift stopped at fractions of the peak θ the
+    measured motion heats the fluid to: where the damping thins to nothing is a
+    property of the fluid, not of the library, so the limit is placed by the data."""
+    out = []
+    for heating, tau, _ in shapes:
+        peak = fluid_temperature_peak([pr[1] for pr in samples.per_run], samples.dt,
+                                      heating, tau)
+        out += [(heating, tau, f * peak) for f in SATURATION_FRACTIONS if peak > 0.0]
+    return out
+
+
+def fluid_temperature_peak(zd: Sequence[np.ndarray], dt: float, heating: float,
+                           tau: float) -> float:
+    """The largest θ of θ' = a ż² − θ/τ along the runs in turn, the fluid carried warm
+    from one into the next (as the equation error's columns carry it), K."""
+    decay = np.exp(-dt / tau)
+    theta, peak = 0.0, 0.0
+    for v in zd:
+        series, zf = lfilter([heating * dt], [1.0, -decay], v * v, zi=[theta * decay])
+        theta, peak = float(series[-1]), max(peak, float(series.max()))
+    return peak
 
 
 def _name(label: str) -> str:

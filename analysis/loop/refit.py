@@ -104,7 +104,7 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
                              for g, d, xr in zip(gain, delay, x)]))
         if h.fresh_states:
             continue  # the next run starts from zero whatever this one left
-        for j, (heating, tau) in thermal:
+        for j, (heating, tau, _) in thermal:
             S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
         for j, shape in hysteretic:  # the seals stay loaded while the mass rests
             S0[:, j] = hysteresis_after(S0[:, j], zd_all, run.dt, shape)

@@ -39,6 +39,12 @@ class Term:
 
     def __post_init__(self) -> None:
         k = kind(self.kind)
+        if len(self.shape) < len(k.shape_names):
+            # trailing shape constants a term may leave out (a Bouc–Wen n, a thermal θ_max)
+            given = dict(zip(k.shape_names, self.shape))
+            full = k.completed_shape(given)
+            if set(full) == set(k.shape_names):
+                object.__setattr__(self, "shape", tuple(float(full[n]) for n in k.shape_names))
         if len(self.shape) != len(k.shape_names):
             raise ValueError(
                 f"term {self.name!r} of kind {self.kind!r} needs shape constants "

@@ -77,7 +77,9 @@ def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
     if kind == EXTENSION_DAMPER:
         return max(0.0, zd)
     if kind == THERMAL_DAMPER:
-        return s * zd
+        # the fluid thins to its hot viscosity and no further: past θ_max (c > 0) the
+        # drift stops, so c1 + c_T θ never crosses zero into a damper that feeds energy in
+        return (min(s, c) if c > 0.0 else s) * zd
     return math.nan
 
 
@@ -151,8 +153,9 @@ KINDS: dict[str, TermKind] = {
                          "when the isolator closes"),
         TermKind("extension_damper", EXTENSION_DAMPER, "c max(ż, 0)", "N/(m/s)",
                  meaning="extra damping in one direction: a check valve in the piston head"),
-        TermKind("thermal_damper", THERMAL_DAMPER, "c θ ż, θ' = a ż² − θ/b", "N/(m/s)/K",
-                 ("heating", "tau"), ("K s/m^2", "s"), has_state=True,
+        TermKind("thermal_damper", THERMAL_DAMPER, "c min(θ, θ_max) ż, θ' = a ż² − θ/b",
+                 "N/(m/s)/K", ("heating", "tau", "theta_max"), ("K s/m^2", "s", "K"),
+                 has_state=True, optional_shapes=(("theta_max", 0.0),),
                  meaning="viscosity falls as the fluid heats from the energy the damper "
                          "dissipates (c < 0): damping that drifts within and between runs"),
     )
