@@ -163,7 +163,7 @@ def fluid_temperature_peak(zd: Sequence[np.ndarray], dt: float, heating: float,
     decay = np.exp(-dt / tau)
     theta, peak = 0.0, 0.0
     for v in zd:
-        series, zf = lfilter([heating * dt], [1.0, -decay], v * v, zi=[theta * decay])
+        series, _ = lfilter([heating * dt], [1.0, -decay], v * v, zi=[theta * decay])
         theta, peak = float(series[-1]), max(peak, float(series.max()))
     return peak
 
