@@ -38,8 +38,10 @@ class EffectKind:
 EFFECTS: dict[str, EffectKind] = {
     e.name: e
     for e in (
-        EffectKind("coulomb_friction", "N", "dry friction of the rod seals, F sgn(ż)",
-                   "coulomb", "c3"),
+        # v_s 0: the report's step at ż = 0; a seal whose friction builds up over a few
+        # mm/s takes v_s
+        EffectKind("coulomb_friction", "N", "dry friction of the rod seals, F tanh(ż/v_s) "
+                   "(F sgn(ż) at v_s = 0)", "coulomb", "c3", (0.0,)),
         EffectKind("asymmetric_damping", "N/(m/s)", "extra damping when the isolator extends",
                    "extension_damper", "c_ext"),
         EffectKind("quadratic_damping", "N/(m/s)^2", "turbulent orifice flow, c ż|ż|",
@@ -119,7 +121,9 @@ def with_effects(model: IsolatorModel, effects: tuple[Effect, ...]) -> IsolatorM
             continue
         have = {t.name: t for t in model.terms}
         if k.term_name in have and have[k.term_name].kind == k.term_kind:
-            model = model.with_parameters(**{k.term_name: have[k.term_name].coef + e.value})
+            t = have[k.term_name]
+            model = model.with_parameters(**{k.term_name: t.coef + e.value,
+                                             **dict(zip(t.shape_names(), e.shape))})
         else:
             model = model.with_terms(Term(k.term_kind, k.term_name, e.value, e.shape))
     return model

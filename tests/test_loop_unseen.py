@@ -128,3 +128,38 @@ def test_a_lagged_servo_leaves_every_interval_finite(tmp_path):
     for name, p in estimated.items():
         lo, hi = p["ci95"]
         assert hi - lo < 0.4 * abs(p["value"]), (name, p)
+
+
+def test_a_slow_force_equation_error_barely_sees_is_tried_where_the_residual_is_high(
+        tmp_path):
+    """Seed 404: a one-sided stiffness of 3.3 % of the peak force (k_a = 4.21 kN/m for
+    z > 0). Its force is slow (96 % of the residual power below 2 Hz), where equation
+    error's twice-differentiated x hides it: a BIC fall of 4.5 on 339 rows, under the
+    margin of 10, while output error leaves 11.0 x the noise. With the residual that far
+    above the noise, equation error's best column is tried all the same, and the judge's
+    checks (held-out runs included) keep it."""
+    doc = _fit(404, ("asym_stiffness",), tmp_path)
+    assert doc["effects_added"] == ["asymmetric_stiffness"]
+    assert doc["residual_after"]["residual_over_noise"] < 1.5  # measured 1.34, from 11.0
+    truth = gen.make_campaign(404, ("asym_stiffness",)).effects[0]
+    # measured 4157 N/m against 4212: the rest of the model's valley (δ, α) moves it little
+    assert doc["parameters"]["k_comp"]["value"] == pytest.approx(truth["k_a"], rel=0.1)
+
+
+def test_a_friction_built_up_over_its_own_velocity_is_refitted_with_it(tmp_path):
+    """Seed 101: a dry friction of 4.08 kN (27 % of the peak force) that the generator
+    builds up as F tanh(ż/v_s) over v_s = 6.2 mm/s. Equation error names it at the
+    library's step: beside the base fit's c2 tanh(βż), itself a friction built up over
+    1/β outside the dead band, the step's column is the one that differs. Refitted as a
+    step it stopped at 5.40 x noise; started at the library's other shapes with v_s
+    free, it ends near the noise with the generator's size and build-up velocity (the
+    generator's constants in the library's terms fit at 1.01 x; the rest is the base
+    fit's valley of α and δ)."""
+    doc = _fit(101, ("coulomb",), tmp_path)
+    assert doc["effects_added"] == ["coulomb_friction"]
+    assert doc["residual_after"]["residual_over_noise"] < 2.0  # measured 1.38
+    e = gen.make_campaign(101, ("coulomb",)).effects[0]
+    p = doc["parameters"]
+    assert p["c3"]["value"] == pytest.approx(e["F_c"], rel=0.1)  # 4001 N against 4080
+    # v_s trades with β and ε along the valley: measured 6.71 mm/s against 6.2
+    assert p["c3.v_s"]["value"] == pytest.approx(e["v_s"], rel=0.25)

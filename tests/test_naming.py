@@ -17,7 +17,7 @@ import pytest
 
 from analysis.loop import LoopRun
 from analysis.loop.candidates import yield_stiffness
-from analysis.loop.naming import BIC_MARGIN, fluid_temperature_peak, name_effects
+from analysis.loop.naming import BIC_MARGIN, Naming, fluid_temperature_peak, name_effects
 from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
@@ -121,3 +121,15 @@ def test_the_fluid_temperature_a_drift_may_stop_at_is_placed_by_the_measured_mot
         pytest.approx(peak, rel=0.01)
     # a second run that started cool would peak lower: the carry is what is measured
     assert fluid_temperature_peak([second.zd], dt, 0.8, 3.0) < 0.99 * peak
+
+
+def test_the_weak_name_is_the_largest_first_fall_and_only_a_fall():
+    """Below the margin equation error names nothing; the loop may still try its best
+    column where the output residual is far above the noise, but only one that lowered
+    BIC at all (ties by name: the same on every machine)."""
+    weak = Naming((), (), {"preload": 0.8, "asymmetric_stiffness": 4.5, "sensor_gain": -1.4},
+                  0.015, 339)
+    assert weak.weak() == ("asymmetric_stiffness",)
+    assert Naming((), (), {"b": 2.0, "a": 2.0}, 0.0, 10).weak() == ("b",)
+    assert Naming((), (), {"preload": -0.6, "sensor_gain": -1.4}, 0.015, 339).weak() == ()
+    assert Naming((), (), {}, 0.0, 0).weak() == ()

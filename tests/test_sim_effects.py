@@ -125,6 +125,17 @@ def test_generate_cli_writes_one_csv_per_run(tmp_path, capsys):
     assert "unknown effect" in capsys.readouterr().err
 
 
+def test_a_friction_built_up_over_v_s_is_injected_with_its_shape():
+    """`coulomb_friction=F,v_s`: the seals' friction builds up over v_s (m/s); without it
+    the report's step."""
+    assert parse_effect("coulomb_friction=150").shape == (0.0,)
+    e = parse_effect("coulomb_friction=150,0.004")
+    assert e.shape == (0.004,)
+    m = with_effects(report_model("average"), (e,))  # onto the report's c3 at zero
+    assert m.parameters()["c3"] == pytest.approx(150.0)
+    assert m.parameters()["c3.v_s"] == 0.004
+
+
 def test_a_hysteresis_spec_without_its_exponent_has_n_1():
     """`hysteresis=VALUE,a,b` as written before the Bouc–Wen exponent existed."""
     assert parse_effect("hysteresis=2e4,60,20").shape == (60.0, 20.0, 1.0)

@@ -20,7 +20,7 @@ EXPECTED = {
     "tanh_spring": lambda z, zd, a: math.tanh(a * z),
     "linear_damper": lambda z, zd, a: zd,
     "tanh_damper": lambda z, zd, a: math.tanh(a * zd),
-    "coulomb": lambda z, zd, a: math.copysign(1.0, zd),
+    "coulomb": lambda z, zd, a: math.tanh(zd / a),  # built up over v_s = a
     "preload": lambda z, zd, a: math.copysign(1.0, z),
     "cubic_spring": lambda z, zd, a: z**3,
     "quadratic_damper": lambda z, zd, a: zd * abs(zd),
@@ -37,6 +37,19 @@ def test_basis_matches_formula(name, z, zd):
     a = 78.74
     got = basis(k.code, z, zd, math.copysign(1.0, z), math.copysign(1.0, zd), 0.0, a, 0.0, 0.0)
     assert got == pytest.approx(EXPECTED[name](z, zd, a), rel=1e-14)
+
+
+def test_a_friction_built_up_over_no_velocity_is_the_reports_step():
+    """c3 tanh(ż/v_s) at v_s = 0 is c3 sgn(ż), with the sign the integrator holds (0 at
+    rest); a term written before v_s existed reads as that step."""
+    code = kind("coulomb").code
+    for zd in (-0.4, 2e-3, 1.7):
+        s = math.copysign(1.0, zd)
+        assert basis(code, 0.0, zd, 1.0, s, 0.0, 0.0, 0.0, 0.0) == s
+        assert basis(code, 0.0, zd, 1.0, s, 0.0, 5e-3, 0.0, 0.0) == pytest.approx(
+            math.tanh(zd / 5e-3), rel=1e-14)
+    assert basis(code, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0) == 0.0  # held: no sign yet
+    assert Term("coulomb", "c3", 150.0).shape == (0.0,)
 
 
 def test_every_kind_has_a_formula_and_units():

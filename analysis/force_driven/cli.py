@@ -35,11 +35,13 @@ def add_force_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--cutoff", type=float, metavar="HZ",
                    help="Butterworth cutoff on the position (default: chosen from the data)")
     g.add_argument("--decimate", type=int, metavar="N",
-                   help="decimation factor (default: keeps 0.4 x the cutoff)")
+                   help="decimation factor (default: keeps 0.4 x the cutoff); the force error "
+                        "is measured over the band it keeps")
     g.add_argument("--derivatives", choices=METHODS, default="auto",
                    help="central differences (EMPS recipe) or spectral (near-Nyquist data)")
     g.add_argument("--heldout", type=Path, action="append", metavar="CSV",
-                   help="a record the loop validates on (default: the last 25 %% of each file)")
+                   help="a record the loop validates on (default: blocked 4-fold "
+                        "cross-validation within the files)")
     g.add_argument("--validation", choices=VALIDATIONS, default="force",
                    help="held-out check: relative force error, or simulated position "
                         "(for output benchmarks such as Silverbox)")

@@ -37,6 +37,7 @@ from rig.errors import DataError
 
 BUTTER_ORDER = 4
 CHEBY = (8, 0.05)  # MATLAB decimate's default IIR: order, passband ripple (dB)
+CHEBY_EDGE = 0.8  # its cutoff, as a share of the new Nyquist frequency
 BORDER = 49  # samples dropped at the start after central differences (the EMPS script)
 SPECTRAL_BORDER = 3.0  # cycles of the cutoff dropped at each end of a spectral derivative
 CENTRAL_BAND = 1 / 25  # central differences only if the kept band is below fs/25
@@ -45,15 +46,20 @@ METHODS = ("auto", "central", "spectral")
 
 @dataclass(frozen=True)
 class Settings:
-    """How a record was prepared; `cutoff_hz` is the Butterworth's, `factor` the decimation's."""
+    """How a record was prepared; `cutoff_hz` is the Butterworth's, `factor` the decimation's.
+
+    `band_hz` is the band the regression's rows keep, 0 to `band_hz`: the force error is
+    measured there, so errors from preparations with different bands do not compare.
+    """
 
     cutoff_hz: float
     factor: int
     method: str  # central or spectral
+    band_hz: float
 
     def as_dict(self) -> dict[str, object]:
         return {"cutoff_hz": self.cutoff_hz, "decimation": self.factor,
-                "derivatives": self.method}
+                "derivatives": self.method, "band_hz": self.band_hz}
 
 
 @dataclass
@@ -125,8 +131,13 @@ def choose(record: ForceRecord, cutoff_hz: float | None, factor: int | None,
     """Fill in what was not given.
 
     The cutoff defaults to the one analysis.signals.differentiate chooses for the position
-    (Mallows' Cp). The decimation keeps 0.4 × the cutoff, the EMPS recipe's ratio
-    (Butterworth at 5 × the 20 Hz bandwidth, decimated to keep 2 × it: 10 at 1 kHz).
+    (Mallows' Cp): about where the position's spectrum meets its noise floor. The decimation
+    keeps 0.4 × the cutoff, the IDIM-LS ratio (Butterworth at 5 × the bandwidth of the
+    dynamics, decimated to keep 2 × it). The EMPS recipe takes that bandwidth from its
+    controller (20 Hz: 100 Hz, decimation 10); a force and a position alone do not show it,
+    and no rule read off them (noise floor, power percentiles of q̈ or F) lands there
+    without a constant tuned to land there (docs/datasets.md). So the band differs from a
+    recipe's, and with it the force error: `Settings.band_hz` says which band it is.
     """
     if method not in METHODS:
         raise DataError(f"unknown derivative method {method!r} (known: {', '.join(METHODS)})")
@@ -139,13 +150,21 @@ def choose(record: ForceRecord, cutoff_hz: float | None, factor: int | None,
         raise DataError(f"{record.path}: cutoff {cutoff_hz} Hz must be between 0 and the "
                         f"Nyquist frequency {fs / 2:.6g} Hz")
     if factor is None:
-        factor = max(1, int(np.floor(0.8 * (fs / 2) / (0.4 * cutoff_hz))))
+        factor = max(1, int(np.floor(CHEBY_EDGE * (fs / 2) / (0.4 * cutoff_hz))))
     if factor < 1:
         raise DataError(f"decimation factor must be >= 1, got {factor}")
-    band = 0.8 * (fs / 2) / factor if factor > 1 else min(cutoff_hz, fs / 2)
+    band = CHEBY_EDGE * (fs / 2) / factor if factor > 1 else min(cutoff_hz, fs / 2)
     if method == "auto":
         method = "central" if band <= CENTRAL_BAND * fs * (1 + 1e-9) else "spectral"
-    return Settings(float(cutoff_hz), int(factor), method)
+    return Settings(float(cutoff_hz), int(factor), method, kept_band(fs, cutoff_hz, factor, method))
+
+
+def kept_band(fs: float, cutoff_hz: float, factor: int, method: str) -> float:
+    """The upper edge (Hz) of what the force keeps: the decimation filter's cutoff, or the
+    Nyquist frequency without one; spectral preparation also low-passes the force by the
+    Butterworth (its half-amplitude point)."""
+    band = CHEBY_EDGE * (fs / 2) / factor if factor > 1 else fs / 2
+    return float(min(band, cutoff_hz) if method == "spectral" else band)
 
 
 def central_derivatives(x: np.ndarray, dt: float, cutoff_hz: float
@@ -181,7 +200,7 @@ def decimate(x: np.ndarray, factor: int) -> np.ndarray:
     aligned so that the last sample is kept."""
     if factor == 1:
         return np.asarray(x, float)
-    b, a = signal.cheby1(CHEBY[0], CHEBY[1], 0.8 / factor)
+    b, a = signal.cheby1(CHEBY[0], CHEBY[1], CHEBY_EDGE / factor)
     y = signal.filtfilt(b, a, x, padlen=3 * (max(len(a), len(b)) - 1))
     n = x.size
     first = factor - (factor * int(np.ceil(n / factor)) - n) - 1

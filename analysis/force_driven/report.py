@@ -48,7 +48,10 @@ def force_loop_json(loop: ForceLoop, records: list[Prepared]) -> dict[str, objec
         "convention": "F = m q'' + sum theta_k phi_k(q, q'): every term resists the force",
         "parameters": parameters_json(loop.final),
         "parameters_base_model": parameters_json(loop.base),
-        "error_definition": "||F - F_hat|| / ||F|| on the filtered, decimated rows",
+        "error_definition": "||F - F_hat|| / ||F|| on the filtered, decimated rows, i.e. "
+                            "over 0 to records.*.band_hz: compare with a figure measured "
+                            "over the same band",
+        "error_band_hz": _band(records),
         "error_before": loop.base.relative_error,
         "error_after": loop.final.relative_error,
         "heldout": {"what": loop.heldout, "measure": loop.heldout_measure,
@@ -82,7 +85,8 @@ def format_force_loop(loop: ForceLoop, records: list[Prepared]) -> str:
         lines.append(f"  {p.name}: force {p.record.force_column}, position "
                      f"{p.record.position_column}, {p.record.t.size} samples at "
                      f"{1 / p.record.dt:.6g} Hz; Butterworth {s.cutoff_hz:.4g} Hz, "
-                     f"{s.method} derivatives, decimated by {s.factor} -> {p.rows} rows")
+                     f"{s.method} derivatives, decimated by {s.factor} -> {p.rows} rows "
+                     f"(band 0-{s.band_hz:.4g} Hz)")
     lines.append(f"base model ({', '.join(_base_names(loop.base))}): relative force error "
                  f"{_pct(loop.base.relative_error)}")
     lines.extend(format_parameters(loop.base))
@@ -91,8 +95,11 @@ def format_force_loop(loop: ForceLoop, records: list[Prepared]) -> str:
         ev = s.evidence
         lines.append(f"  step {i}: added {s.added} {s.parameter} = {s.value:.4g} ± {s.std:.2g} "
                      f"{s.unit}")
+        folds = ev["heldout_folds"]
         lines.append(f"    evidence: F = {ev['F']:.1f} (p = {ev['p']:.2g}), residual cut "
-                     f"{100 * ev['rss_drop']:.1f} %; held out: {ev['heldout']}")
+                     f"{100 * ev['rss_drop']:.1f} %; held out: {ev['heldout']}"
+                     + (f", better in {folds['better']} of {folds['folds']} folds"
+                        if folds["folds"] > 1 else ""))
         lines.append(f"    why: {ev['explanation']}")
         lines.append(f"    relative force error {_pct(s.error_before)} -> {_pct(s.error_after)}")
     if not loop.steps:
@@ -108,8 +115,18 @@ def format_force_loop(loop: ForceLoop, records: list[Prepared]) -> str:
                  f"{_pct(loop.final.relative_error)}; held out ({loop.heldout}): "
                  f"{loop.heldout_measure} {held(loop.heldout_before)} -> "
                  f"{held(loop.heldout_after)}")
+    band = _band(records)
+    if band is not None:
+        lines.append(f"  the force error is over 0-{band:.4g} Hz, the band kept: a figure over "
+                     "another band (another --decimate or --cutoff) does not compare with it")
     lines.extend(format_parameters(loop.final))
     return "\n".join(lines)
+
+
+def _band(records: list[Prepared]) -> float | None:
+    """The band every record keeps (Hz), or None without records or when they differ."""
+    bands = {p.settings.band_hz for p in records}
+    return bands.pop() if len(bands) == 1 else None
 
 
 def _base_names(fit: TermFit) -> list[str]:

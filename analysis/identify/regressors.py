@@ -23,7 +23,7 @@ from analysis.model.terms import basis, kind, state_rate
 # numba caches this module's compiled code against this file alone, and terms.basis
 # and terms.state_rate are compiled into it: a change to them (the Bouc–Wen exponent)
 # bumps this, or a cached kernel runs the old formula
-TERMS_REVISION = 3
+TERMS_REVISION = 4
 
 
 def regressor_matrix(model: IsolatorModel, z: np.ndarray, zd: np.ndarray) -> np.ndarray:

@@ -43,6 +43,14 @@ THERMAL_SHAPES = tuple((THERMAL_SHAPE[0], b, 0.0) for b in (1.5, 5.0, THERMAL_SH
 HYSTERESIS_SHAPES = tuple((0.75 / y**n, 0.25 / y**n, n) for n in (1.0, 2.0)
                           for y in (2.5e-3, 5e-3, 12.5e-3))
 HYSTERETIC_FORCE = 100.0  # N at the yield: as large as the report's breakaway force
+# A seal's friction builds up over a velocity v_s (a bristle layer, an oil film, Stribeck):
+# the report's step (v_s = 0) is the library's shape, equation error also tries a few mm/s,
+# and a v_s it chooses is refitted. Below FRICTION_BUILD_UP_MIN the runs, sampled at 1 kHz
+# with ż known to mm/s, cannot tell it from the step, and the integrator's 1 ms step would
+# chatter across a slope c/v_s that steep
+FRICTION_SHAPES = ((0.0,), (2e-3,), (6e-3,))  # m/s
+FRICTION_BUILD_UP_MIN = 1e-3  # m/s
+SHAPE_FLOORS = {("coulomb", "v_s"): FRICTION_BUILD_UP_MIN}  # (term kind, shape): least value
 
 
 def yield_stiffness(shape: tuple[float, ...]) -> float:
@@ -129,18 +137,33 @@ class Candidate:
         if not self.term_kind:
             return model, self.parameter
         for t in model.terms:
+            if t.kind == self.term_kind and t.name == self.parameter and t.coef == 0.0 \
+                    and t.shape != self.shape:
+                # the report's c3 at zero, at this effect's shape (a friction built up over
+                # v_s)
+                return model.with_parameters(**dict(zip(t.shape_names(), self.shape))), t.name
             if t.kind == self.term_kind and (t.shape == self.shape or t.name == self.parameter):
                 return model, t.name
         return model.with_terms(Term(self.term_kind, self.parameter, 0.0, self.shape)), \
             self.parameter
 
 
+def shape_floor(model: IsolatorModel, name: str) -> float:
+    """The least value a refit may give the shape constant `name` of `model` (−inf: none)."""
+    for t in model.terms:
+        for q, n in zip(t.shape_names(), kind(t.kind).shape_names):
+            if q == name:
+                return SHAPE_FLOORS.get((t.kind, n), -np.inf)
+    return -np.inf
+
+
 CANDIDATES: dict[str, Candidate] = {
     c.name: c
     for c in (
         Candidate("coulomb_friction", "dry friction of the rod seals: a constant force against "
-                  "the motion, a step in the restoring force at ż = 0", "c3", "N", "zd",
-                  "coulomb", sign=+1, takes_over="c2"),
+                  "the motion, a step in the restoring force at ż = 0 (or built up over v_s)",
+                  "c3", "N", "zd", "coulomb", FRICTION_SHAPES[0], sign=+1, takes_over="c2",
+                  free_shape=("v_s",), shapes=FRICTION_SHAPES),
         Candidate("asymmetric_damping", "a check valve in the piston head: more damping in "
                   "extension than in compression", "c_ext", "N/(m/s)", "zd",
                   "extension_damper"),

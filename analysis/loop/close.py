@@ -85,7 +85,9 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         if diag.residual_over_noise <= NOISE_LEVEL and diag.white:
             break
         # the first name is also sought at the constants identification gave (see
-        # `_name`)
+        # `_name`), and only the first may be equation error's weak one (`Naming.weak`):
+        # after an effect whose library shape is not the data's, what is left above the
+        # noise is that shape's misfit, which any column cuts a little
         step, why, better = _one_step(fit, free, runs, diag, progress, start,
                                       None if steps else model)
         refused.extend(why)
@@ -182,16 +184,26 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
     progress("loop: equation error over every candidate (BIC)")
     naming = _name(h, data, present, identified)
     refused: list[dict[str, object]] = []
+    to_try = naming.to_try()
     if not naming.order:
         best = max(naming.first, key=lambda n: naming.first[n], default=None)
         refused.append({"candidate": "(every candidate)", "reason": (
             f"equation error: none lowers BIC by more than {BIC_MARGIN:g}" + (
                 f" (best {best}: {naming.first[best]:.1f})" if best else ""))})
-        return None, refused, None
-    progress("loop: equation error names " + ", ".join(
-        f"{n} (BIC -{g:.0f})" for n, g in zip(naming.order, naming.gains)))
+        # a residual well above the noise is evidence too: output error sees slow
+        # structure equation error's twice-differentiated x hides (`Naming.weak`), and the
+        # judge's checks, held-out runs included, still decide
+        to_try = naming.weak() if (identified is not None and
+                                   diag.residual_over_noise > UNEXPLAINED_LEVEL) else ()
+        if not to_try:
+            return None, refused, None
+        progress(f"loop: residual {diag.residual_over_noise:.1f} x noise: trying equation "
+                 f"error's best, {to_try[0]} (BIC -{naming.first[to_try[0]]:.1f})")
+    else:
+        progress("loop: equation error names " + ", ".join(
+            f"{n} (BIC -{g:.0f})" for n, g in zip(naming.order, naming.gains)))
     lone: dict[str, tuple[Score, Candidate, Hypothesis, Fit | None]] = {}
-    for name in naming.to_try()[:MAX_TRIED]:
+    for name in to_try[:MAX_TRIED]:
         s, c, cand_h = _scored(fit, data, naming, name)
         if s.name in tried:
             continue

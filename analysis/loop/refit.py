@@ -31,7 +31,13 @@ from scipy.optimize import least_squares
 
 from analysis.identify.regressors import state_after
 from analysis.identify.run_data import RunData, start_state
-from analysis.loop.candidates import SENSOR_DELAY, SENSOR_GAIN, SENSOR_PARAMETERS, Candidate
+from analysis.loop.candidates import (
+    SENSOR_DELAY,
+    SENSOR_GAIN,
+    SENSOR_PARAMETERS,
+    Candidate,
+    shape_floor,
+)
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import BOUC_WEN
 from analysis.simulate import RunSetup, simulate_batch, simulate_runs
@@ -266,9 +272,9 @@ def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
         else:
             # signed: an effect added on an earlier step may be negative (a force offset of
             # -4 kN), and bounds of |v| clipped it to +80 N at the start
-            v = h.value(n)
+            v, floor = h.value(n), shape_floor(h.model, n)
             scales.append(abs(v))
-            bounds.append((min(0.02 * v, 50.0 * v), max(0.02 * v, 50.0 * v)))
+            bounds.append((max(min(0.02 * v, 50.0 * v), floor), max(0.02 * v, 50.0 * v)))
     return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
 
 

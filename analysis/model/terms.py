@@ -61,7 +61,9 @@ def basis(kind: int, z: float, zd: float, sz: float, szd: float, s: float,
     if kind == TANH_DAMPER:
         return math.tanh(a * zd)
     if kind == COULOMB:
-        return szd
+        # smoothed where the seals' friction builds up over a velocity a (a Stribeck or
+        # bristle layer, an oil film): a = 0 is the report's step at ż = 0
+        return math.tanh(zd / a) if a > 0.0 else szd
     if kind == PRELOAD:
         return sz
     if kind == CUBIC_SPRING:
@@ -135,8 +137,9 @@ KINDS: dict[str, TermKind] = {
                  meaning="viscous damping, active everywhere including the dead band"),
         TermKind("tanh_damper", TANH_DAMPER, "c tanh(β ż)", "N", ("beta",), ("s/m",),
                  gated_by_dead_band=True, meaning="softening damping, orifice flow (Eq 9)"),
-        TermKind("coulomb", COULOMB, "c sgn(ż)", "N", switches_on="zd",
-                 meaning="dry friction of the seals"),
+        TermKind("coulomb", COULOMB, "c tanh(ż/v_s), c sgn(ż) at v_s = 0", "N", ("v_s",),
+                 ("m/s",), switches_on="zd", optional_shapes=(("v_s", 0.0),),
+                 meaning="dry friction of the seals, built up over v_s"),
         TermKind("preload", PRELOAD, "γ sgn(z)", "N", gated_by_dead_band=True, switches_on="z",
                  meaning="fluid preload: a force step at the edge of the dead band"),
         TermKind("cubic_spring", CUBIC_SPRING, "k z³", "N/m^3", gated_by_dead_band=True,

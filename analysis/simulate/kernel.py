@@ -57,7 +57,7 @@ LEAVE_MARGIN = 1e-9
 # numba caches this module's compiled code against this file alone, and terms.basis
 # and terms.state_rate are compiled into it: a change to them (the Bouc–Wen exponent)
 # bumps this, or a cached kernel runs the old formula
-TERMS_REVISION = 3
+TERMS_REVISION = 4
 
 # event slots
 EV_BAND, EV_Z0, EV_ZD0, EV_STOP, EV_BREAKAWAY, EV_GRIP, EV_LEAVE = range(7)

@@ -26,7 +26,7 @@ def _force(model: IsolatorModel, z: float, zd: float, sz: float, szd: float,
         a = t.shape[0] if t.shape else 0.0
         total += t.coef * {"linear_spring": z, "tanh_spring": np.tanh(a * z),
                            "linear_damper": zd, "tanh_damper": np.tanh(a * zd),
-                           "coulomb": szd, "preload": sz}[k]
+                           "coulomb": np.tanh(zd / a) if a > 0 else szd, "preload": sz}[k]
     return total
 
 
