@@ -55,7 +55,7 @@ from analysis.loop.candidate_fit import (
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.conditioning import candidate_collinearities
 from analysis.loop.evidence import Diagnosis, diagnose_fit
-from analysis.loop.judge import judge, look_alike_shape, own_parameters, why_refused
+from analysis.loop.judge import held_look_alikes, judge, own_parameters
 from analysis.loop.naming import BIC_MARGIN, Naming, name_effects
 from analysis.loop.pair import pair_step
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
@@ -147,15 +147,10 @@ def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunDa
         cands = {s.parameter: CANDIDATES[s.added] for s in steps}
         without = refit_free(fit.hypothesis.with_values({step.parameter: 0.0}), data, others,
                              {p: c for p, c in cands.items() if p != step.parameter})
+        # as on the way in (`judge`): each shape constant it stands in for held, judged
+        # again (a Coulomb friction beside a cubic spring, against ε at 0.997)
         reason = ("the model without it fits as well" if without.rss <= fit.rss else
-                  why_refused(without, fit, step.parameter))
-        if shape := (reason.startswith("a look-alike") and
-                     look_alike_shape(fit, step.parameter)):
-            # as on the way in (`judge`): a shape constant it stands in for held, judged
-            # again (a Coulomb friction beside a cubic spring, against ε at 0.997)
-            held = refit_free(fit.hypothesis, data, [n for n in fit.names if n != shape],
-                              cands)
-            reason = why_refused(without, held, step.parameter)
+                  held_look_alikes(without, fit, step.parameter, data, cands)[1])
         if reason:
             dropped.append({"candidate": step.added, "reason": "dropped once the effects "
                             f"after it were in the model: {reason}"})

@@ -45,15 +45,10 @@ def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
     data = [r.data for r in runs]
     refused, passing = [], []
     for s, c, _, _, cf in refits:
-        reason = why_refused(fit, cf, s.name)
-        shape = look_alike_shape(cf, s.name) if reason.startswith("a look-alike") else None
-        if shape is not None:
-            # a shape constant the candidate's column can stand in for (α of a k2 tanh(αz)
-            # that is nearly linear over the motion, against a cubic spring): held at its
-            # value, the candidate is judged again
-            cf = refit_free(cf.hypothesis, data, [n for n in cf.names if n != shape],
-                            {s.name: c})
-            reason = why_refused(fit, cf, s.name)
+        # a shape constant the candidate's column can stand in for (α of a k2 tanh(αz)
+        # that is nearly linear over the motion, against a cubic spring): held at its
+        # value, the candidate is judged again
+        cf, reason = held_look_alikes(fit, cf, s.name, data, {s.name: c})
         if reason and cf.rss < (1.0 - MIN_DROP) * fit.rss:
             # refused, yet its refit found a lower valley: where the model without it,
             # refitted from there, keeps the cut, that is a better optimum of the model as
@@ -102,14 +97,42 @@ def _rebase(fit: Fit, without: Fit, c: Candidate, reason: str = "") -> dict | No
             "is done again from there"}
 
 
-def look_alike_shape(cf: Fit, name: str) -> str | None:
-    """The shape constant of Eq 10 most correlated with the candidate, if above
-    MAX_CORRELATION; None when the look-alike is a coefficient or another effect."""
-    j = cf.names.index(name)
-    corr = np.nan_to_num(np.abs(cf.correlation[j]), nan=0.0)
+def held_look_alikes(before: Fit, after: Fit, name: str, data,
+                     candidates: dict[str, Candidate]) -> tuple[Fit, str]:
+    """`after` refitted with each shape constant of Eq 10 the effect is a look-alike of
+    held in turn, and why it is refused then ("" where it passes).
+
+    Holding one can show the next: an unseen friction beside a hardening spring was α's
+    look-alike at 1.000 and, α held, ε's at 1.000, and was dropped with only α held.
+    """
+    reason = why_refused(before, after, name)
+    while reason.startswith("a look-alike") and (shape := look_alike(after, name)[0]) \
+            in SHAPE_CONSTANTS:
+        after = refit_free(after.hypothesis, data,
+                           [n for n in after.names if n != shape], candidates)
+        reason = why_refused(before, after, name)
+    return after, reason
+
+
+def look_alike(fit: Fit, name: str) -> tuple[str, float] | None:
+    """The determined constant the effect of parameter `name` stands in for, and their
+    |correlation|, where above MAX_CORRELATION; None where there is none.
+
+    A constant the runs do not determine (std above its value) is no look-alike: its
+    correlation with anything is that of a flat direction; nor is the effect's own
+    shape (a cooling time trades against the drift's size by the physics), nor the
+    Eq 10 term a base fit bends into the effect's shape: it trades with the effect
+    along the valley they share, that the model needs both is the cut, and the model
+    without the effect, refitted from its constants, checks it (`_rebase`; a 4 kN
+    preload beside k2 tanh(αz) at 1.000, 1.12 -> 1.04 x noise, the truth at 1.03).
+    """
+    j = fit.names.index(name)
+    ignored = (own_parameters(fit, name) - {name}) | {_taken_over(fit, name)}
+    loose = ~(fit.std < np.abs(fit.values)) | np.array([n in ignored for n in fit.names])
+    corr = np.nan_to_num(np.where(loose, 0.0, np.abs(fit.correlation[j])), nan=0.0)
     corr[j] = 0.0
     k = int(np.argmax(corr))
-    return cf.names[k] if corr[k] > MAX_CORRELATION and cf.names[k] in SHAPE_CONSTANTS else None
+    return (fit.names[k], float(corr[k])) if corr[k] > MAX_CORRELATION else None
 
 
 def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
@@ -139,15 +162,6 @@ def why_refused(before: Fit, after: Fit, name: str, against: str = "") -> str:
     value, std = after.param(name)
     t = abs(value) / std if std > 0 else np.inf
     drop = (before.rss - after.rss) / before.rss
-    j = after.names.index(name)
-    # a constant the runs do not determine (std above its value) is no look-alike:
-    # its correlation with anything is that of a flat direction; nor is the effect's own
-    # shape (a cooling time trades against the drift's size by the physics)
-    shapes = own_parameters(after, name) - {name}
-    loose = ~(after.std < np.abs(after.values)) | np.array([n in shapes for n in after.names])
-    others = np.nan_to_num(np.delete(np.where(loose, 0.0, np.abs(after.correlation[j])), j),
-                           nan=0.0)
-    worst = int(np.argmax(others)) if others.size else -1
     if t < MIN_T:
         return f"not significant: |t| = {t:.1f} < {MIN_T}"
     explained = np.sqrt(max(before.rss - after.rss, 0.0) / after.n_samples)
@@ -158,14 +172,8 @@ def why_refused(before: Fit, after: Fit, name: str, against: str = "") -> str:
                 f"(< {MIN_EXPLAINED:g}): not worth naming at this noise")
     if drop < MIN_DROP:
         return f"cuts the residual by only {100 * drop:.1f} % (< {100 * MIN_DROP:.0f} %){against}"
-    if worst >= 0 and others[worst] > MAX_CORRELATION:
-        other = [n for n in after.names if n != name][worst]
-        # the term a base fit bends into the effect's shape trades with it along the
-        # valley they share; that the model needs both is the cut, and the model without
-        # the effect, refitted from its constants, checks it (`_rebase`): a 4 kN preload
-        # beside k2 tanh(αz) at 1.000, 1.12 -> 1.04 x noise, the truth at 1.03
-        if other != _taken_over(after, name):
-            return f"a look-alike of {other}: correlation {others[worst]:.3f}"
+    if alike := look_alike(after, name):
+        return f"a look-alike of {alike[0]}: correlation {alike[1]:.3f}"
     return ""
 
 
