@@ -12,6 +12,7 @@ import pytest
 
 from analysis.blas import one_blas_thread
 from analysis.model.report_constants import report_model
+from analysis.simulate.compiled import warm_up
 from rig.config import load_config
 from rig.profile import load_profile
 from sim.rig_sim import SimRig
@@ -19,6 +20,13 @@ from sim.rig_sim import SimRig
 # The fits in this process run as the `analysis` CLI runs them: BLAS on one thread
 # (analysis/blas.py).
 one_blas_thread()
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """The integrator compiled (or loaded from numba's cache) once, before any test: on a
+    cold cache each process a test starts (the simulated rig, the CLI) would compile it
+    too, every one of them against its own start timeout."""
+    warm_up()
 
 
 @pytest.fixture(scope="session")

@@ -22,7 +22,7 @@ import pytest
 from rig.runfile import open_run
 from tests.test_run_limits import profile_file
 
-COLD_START_S = 90.0  # a cold numba cache compiles the simulator first (~15 s, slower loaded)
+COLD_START_S = 150.0  # a cold numba cache compiles the simulator first (~40 s, slower loaded)
 
 
 class Tmux:

@@ -1,6 +1,6 @@
 """Whether the simulator's compiled code is on disk, and compiling it with a word first.
 
-numba compiles the integrator at its first call in a new environment (~15 s on
+numba compiles the integrator at its first call in a new environment (~40 s on
 the 2-core machine) and caches the machine code beside the module; without a
 word, `analysis fit` went quiet for those seconds on a fresh install, the
 moment a new user is most likely to think it hung.
@@ -17,7 +17,7 @@ from analysis.model.report_constants import report_model
 from analysis.simulate import RunSetup, motion_from_samples, simulate_runs
 from analysis.simulate.kernel import simulate_jobs
 
-COMPILE_NOTE = "compiling the simulator (first run only, ~15 s)"
+COMPILE_NOTE = "compiling the simulator (first run only, ~40 s)"
 
 
 def compiled_on_disk() -> bool:

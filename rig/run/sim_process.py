@@ -20,7 +20,7 @@ from typing import Self
 from rig.config import RigConfig
 from rig.errors import RigError
 
-START_TIMEOUT_S = 60.0  # a cold numba cache compiles the integrator first (~15 s)
+START_TIMEOUT_S = 150.0  # a cold numba cache compiles the integrator first (~40 s idle)
 
 
 class SimProcess:
