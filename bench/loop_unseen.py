@@ -45,6 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from analysis.simulate.compiled import warm_up
 from bench.unseen import peers  # pysindy is imported only when its peer runs
 from bench.unseen.generator import MASS, make_campaign, write_campaign
 from bench.unseen.peers import EFFECT_NAMES as PEER_NAMES
@@ -166,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         if not todo:
             ap.error(f"no campaign has seed {sorted(a.only)}; see campaigns() for the numbering")
     print(f"{len(todo)} campaigns from bench/unseen/generator.py, {a.jobs} at a time")
+    # numba's one-time compile on a cold cache (~40 s) is no campaign's wall time
+    warm_up(lambda m: print(f"{m} before the first campaign", flush=True))
     rows: dict[str, list[dict]] = {"analysis fit": []}
     with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(a.jobs) as pool:
         futures = [(seed, eff, pool.submit(run_product, seed, eff, Path(tmp)))
