@@ -273,3 +273,26 @@ def test_runs_recorded_each_from_rest_are_predicted_each_from_zero_state():
     carried = predict(h, data[:2])[1]
     np.testing.assert_allclose(fresh, alone, rtol=0, atol=1e-12)
     assert np.max(np.abs(carried - alone)) > 10 * data[1].sigma_x  # the state A left shows
+
+
+def test_rows_that_start_apart_are_each_predicted_as_alone():
+    """Runs that carry no state are simulated in one parallel call, rows grouped by where
+    their sensor map says the mass started: a sensor gain moves the start. Each row of
+    the batch must be the prediction that row makes alone, to the last bit (the fits'
+    decisions follow their last bits), and the rows must differ."""
+    import numpy as np
+
+    from analysis.identify.run_data import start_state
+    from analysis.loop.refit import Hypothesis, predict
+
+    data = [r.data for r in campaign("sensor_gain=0.05", seed=2)]
+    h = Hypothesis(report_model("average"))
+    rows = np.array([[0.0, 0.0], [0.05, 0.0], [-0.03, 0.002]])  # gain, delay
+    # run B rests off centre in the dead band: each gain puts its start elsewhere
+    assert len({start_state(data[1], g, h.model.dead_band) for g in rows[:, 0]}) == 3
+    together = predict(h, data, ("sensor_gain", "sensor_delay"), rows)
+    for i, row in enumerate(rows):
+        alone = predict(h.with_values(dict(zip(("sensor_gain", "sensor_delay"), row))), data)
+        for k in range(len(data)):
+            np.testing.assert_array_equal(together[k][i], alone[k][0])
+    assert np.max(np.abs(together[0][1] - together[0][0])) > 10 * data[0].sigma_x
