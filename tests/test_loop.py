@@ -13,10 +13,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 from scipy.signal import savgol_filter
 
 from analysis.loop import LoopRun, close_loop
+from analysis.loop.candidates import CANDIDATES
+from analysis.loop.refit import Hypothesis, refit_free
+from analysis.loop.report import parameters_json
 from analysis.model.report_constants import report_model
 from sim.effects import parse_effect
 from sim.generate import generate_campaign
@@ -296,3 +300,17 @@ def test_rows_that_start_apart_are_each_predicted_as_alone():
         for k in range(len(data)):
             np.testing.assert_array_equal(together[k][i], alone[k][0])
     assert np.max(np.abs(together[0][1] - together[0][0])) > 10 * data[0].sigma_x
+
+
+def test_a_constant_that_moves_nothing_has_no_finite_std():
+    """A drift's limit far above any θ the runs heat the fluid to moves no sample: its
+    Jacobian column is nil, and pinv gives it variance 0 — an exact value, and an
+    infinite t. It is reported as not estimated, and the drift beside it keeps its own."""
+    runs = campaign("thermal_damping_drift=-464")
+    c = CANDIDATES["thermal_damping_drift"].shaped((0.8, 600.0, 1.0e3))
+    model, p = c.add_to(report_model("average"))
+    fit = refit_free(Hypothesis(model.with_parameters(**{p: -464.0})), [r.data for r in runs],
+                     ["c1", p, f"{p}.theta_max"], {p: c}, max_nfev=3)
+    assert not np.isfinite(fit.param(f"{p}.theta_max")[1])
+    assert 0.0 < fit.param(p)[1] < 0.1 * abs(fit.param(p)[0])
+    assert parameters_json(fit)[f"{p}.theta_max"]["std"] is None

@@ -13,12 +13,12 @@ their model value and move to the known side.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.identify.regressors import regressor_matrix
+from analysis.identify.regressors import regressor_matrix, term_column
 from analysis.model.isolator import IsolatorModel
 
 
@@ -57,10 +57,19 @@ class LinearFit:
 
 def fit_coefficients(model: IsolatorModel, z: np.ndarray, zd: np.ndarray, xdd: np.ndarray,
                      free: Sequence[str] | None = None,
-                     weights: np.ndarray | None = None) -> LinearFit:
-    """Least-squares coefficients of the terms in `free` (default: every term)."""
+                     weights: np.ndarray | None = None,
+                     columns: Mapping[str, np.ndarray] | None = None) -> LinearFit:
+    """Least-squares coefficients of the terms in `free` (default: every term).
+
+    `columns`: terms whose column along these samples is given (a term with a state,
+    integrated along the runs it came from), by name."""
     names = tuple(t.name for t in model.terms) if free is None else tuple(free)
-    Z_all = regressor_matrix(model, z, zd)
+    if columns:
+        Z_all = np.column_stack([columns[t.name] if t.name in columns else
+                                 term_column(model, j, z, zd)
+                                 for j, t in enumerate(model.terms)])
+    else:
+        Z_all = regressor_matrix(model, z, zd)
     cols = [i for i, t in enumerate(model.terms) if t.name in names]
     if len(cols) != len(names):
         raise KeyError(f"unknown terms in {names}: model has {[t.name for t in model.terms]}")

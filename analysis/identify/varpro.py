@@ -14,8 +14,8 @@ coordinates. Shape constants at which a coefficient turns negative are refused
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize
@@ -43,17 +43,20 @@ class Projection:
 
 @dataclass(frozen=True)
 class Data:
-    """Stacked samples of one or several runs: z (m), ż (m/s), ẍ (m/s²)."""
+    """Stacked samples of one or several runs: z (m), ż (m/s), ẍ (m/s²); and the column
+    of each term with a state (Bouc–Wen r, fluid θ), by name: integrated along the whole
+    runs before their samples were chosen, so it is no function of these samples alone."""
 
     z: np.ndarray
     zd: np.ndarray
     xdd: np.ndarray
+    columns: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def _cost(model: IsolatorModel, data: Data, free: Sequence[str], values: dict[str, float],
           signed: Sequence[str] = ()) -> tuple[float, LinearFit, IsolatorModel]:
     m = model.with_parameters(**values)
-    fit = fit_coefficients(m, data.z, data.zd, data.xdd, free=free)
+    fit = fit_coefficients(m, data.z, data.zd, data.xdd, free=free, columns=data.columns)
     # Eq 10's coefficients are all positive (springs and dampers); a negative one means
     # two columns have become look-alikes (tanh(αz) ≈ αz for small α) and cancel
     if np.any((fit.values <= 0) & ~np.isin(list(fit.names), list(signed))):
@@ -100,9 +103,12 @@ class Gram:
         missing = [key for key in keys if key not in self.ids]
         if missing:
             m = self.model.with_parameters(**values)
+            given = self.data.columns
             for key in missing:
                 self.ids[key] = len(self.columns)
-                self.columns.append(term_column(m, key[0], self.data.z, self.data.zd))
+                name = self.model.terms[key[0]].name
+                self.columns.append(given[name] if name in given else
+                                    term_column(m, key[0], self.data.z, self.data.zd))
         return [self.ids[key] for key in keys]
 
     def sigma2_many(self, free: Sequence[str], points: Sequence[dict[str, float]],

@@ -104,10 +104,12 @@ class Candidate:
 
     def bounds(self, model: IsolatorModel) -> tuple[float, float]:
         big = 50.0 * self.typical(model)  # an effect 50 times "worth naming" is another model
-        if self.term_kind == "thermal_damper" and self.shape[2] > 0.0:
+        # the limit the model's term has (a start may have placed it), else this shape's
+        shape = next((t.shape for t in model.terms if t.name == self.parameter), self.shape)
+        if self.term_kind == "thermal_damper" and shape[2] > 0.0:
             # a drift that stops at θ_max is bounded by the damping it can take away, c1
             # (twice, for a refit that lowers θ_max), however steep it is per K on the way
-            big = max(big, 2.0 * abs(model.parameters().get("c1", 6.0e3)) / self.shape[2])
+            big = max(big, 2.0 * abs(model.parameters().get("c1", 6.0e3)) / shape[2])
         return (0.0 if self.sign > 0 else -big, 0.0 if self.sign < 0 else big)
 
     def shaped(self, shape: tuple[float, ...]) -> Candidate:

@@ -97,13 +97,15 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
     for run in runs:
         # each row starts at rest where its own sensor map says the mass was
         x = np.empty((V.shape[0], run.t.size))
-        starts = np.array([start_state(run, g, h.model.dead_band) for g in gain])
+        groups = _start_groups(run, gain, h.model.dead_band)
         if z_end is not None:
+            z_start = np.empty_like(z_end)
+            for z0, _, rows_z0 in groups:
+                z_start[rows_z0] = z0
             for j, shape in hysteretic:  # the seals follow the mass's settling between runs
-                S0[:, j] = hysteresis_along(S0[:, j], z_end, starts[:, 0], shape)
+                S0[:, j] = hysteresis_along(S0[:, j], z_end, z_start, shape)
         zd_all = np.empty_like(x)
-        for z0, zd0 in np.unique(starts, axis=0):
-            rows_z0 = np.all(starts == (z0, zd0), axis=1)
+        for z0, zd0, rows_z0 in groups:
             b = simulate_batch(h.model, V[rows_z0], run.motion, duration=run.t[-1] - run.t[0],
                                dt=run.dt, t0=run.t[0], s0=S0[rows_z0], z0=z0, zd0=zd0)
             x[rows_z0] = b.z + b.u
@@ -128,12 +130,8 @@ def _independent_runs(h: Hypothesis, runs: Sequence[RunData], V: np.ndarray, S0:
     its own: the same numbers as run by run, bit for bit."""
     setups, vectors, states, rows_of = [], [], [], []
     for k, run in enumerate(runs):
-        # each row starts at rest where its own sensor map says the mass was
-        starts = np.array([start_state(run, g, h.model.dead_band) for g in gain])
-        for z0, zd0 in np.unique(starts, axis=0):
-            chosen = np.all(starts == (z0, zd0), axis=1)
-            setups.append(RunSetup(run.motion, run.t[-1] - run.t[0], run.dt, run.t[0],
-                                   float(z0), float(zd0)))
+        for z0, zd0, chosen in _start_groups(run, gain, h.model.dead_band):
+            setups.append(RunSetup(run.motion, run.t[-1] - run.t[0], run.dt, run.t[0], z0, zd0))
             vectors.append(V[chosen])
             states.append(S0[chosen])
             rows_of.append((k, chosen))
@@ -141,6 +139,15 @@ def _independent_runs(h: Hypothesis, runs: Sequence[RunData], V: np.ndarray, S0:
     for (k, chosen), b in zip(rows_of, simulate_runs(h.model, setups, vectors, s0=states)):
         x[k][chosen] = b.z + b.u
     return x
+
+
+def _start_groups(run: RunData, gain: np.ndarray, dead_band: float
+                  ) -> list[tuple[float, float, np.ndarray]]:
+    """(z0, ż0, rows) per distinct start: each row starts at rest where its own sensor
+    map (gain) says the mass was, so rows of one run may start apart."""
+    starts = np.array([start_state(run, g, dead_band) for g in gain])
+    return [(float(z0), float(zd0), np.all(starts == (z0, zd0), axis=1))
+            for z0, zd0 in np.unique(starts, axis=0)]
 
 
 def _sensed(runs: Sequence[RunData], gain: np.ndarray, delay: np.ndarray,
@@ -275,8 +282,13 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     cov = covariance(r, J, per_run) * np.outer(scales, scales)
     # a direction the data do not determine can come out of pinv slightly negative
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # a constant that moves nothing (a drift's limit the fluid never reaches) is not
+    # known exactly: pinv gives it variance 0, and it would read as infinitely significant
+    std[~np.any(J != 0.0, axis=0)] = np.inf
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
+    corr[~np.isfinite(std)] = np.nan
+    corr[:, ~np.isfinite(std)] = np.nan
     corr[~np.isfinite(corr)] = np.nan  # a constant the data do not determine: no correlation
     corr = np.clip(corr, -1.0, 1.0)  # a clamped tiny variance must not read as |ρ| > 1
     return Fit(fitted, names, values, std, corr, tuple(per_run), J, scales, int(sol.nfev))
