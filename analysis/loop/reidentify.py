@@ -156,11 +156,15 @@ def with_sensor_gain(model: IsolatorModel, c: Candidate, runs: Moving) -> Reiden
     free = [t.name for t in model.terms if t.name in LINEAR or t.coef != 0.0]
     signed = _signed(model, free)
 
+    # the moving samples once: each g only rescales them
+    u, ud = (np.concatenate(v)[runs.mask] for v in (runs.u, runs.ud))
+    x = np.concatenate(runs.z)[runs.mask] + u
+    xd = np.concatenate(runs.zd)[runs.mask] + ud
+    xdd = np.concatenate(runs.xdd)[runs.mask]
+
     def data_at(g: float) -> Data:
         s = 1.0 + g
-        z = np.concatenate([(z + u) / s - u for z, u in zip(runs.z, runs.u)])
-        zd = np.concatenate([(zd + ud) / s - ud for zd, ud in zip(runs.zd, runs.ud)])
-        return Data(z[runs.mask], zd[runs.mask], np.concatenate(runs.xdd)[runs.mask] / s)
+        return Data(x / s - u, xd / s - ud, xdd / s)
 
     def cost(g: float) -> float:
         v = project(model, data_at(g), SHAPES, free=free, signed=signed).fit.sigma2
