@@ -76,22 +76,28 @@ def term_column(model: IsolatorModel, j: int, z: np.ndarray, zd: np.ndarray) -> 
     return col
 
 
+def campaign_column(model: IsolatorModel, j: int, z: Sequence[np.ndarray],
+                    zd: Sequence[np.ndarray], dt: float, carried: bool = True) -> np.ndarray:
+    """Term j's basis on every sample of the runs, in order. A fluid's temperature stays
+    into the next run unless `carried` is False; every other state starts each run at
+    zero."""
+    codes, gated = model.structure()
+    t = model.terms[j]
+    shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
+    carry = carried and t.kind == "thermal_damper"  # the fluid stays warm into the next run
+    state, cols = 0.0, []
+    for zr, zdr in zip(z, zd):
+        zr, zdr = np.ascontiguousarray(zr, float), np.ascontiguousarray(zdr, float)
+        col = np.empty(zr.size)
+        end = _series(codes[j], gated[j], *shape, zr, zdr, model.dead_band, dt, state, col)
+        state = end if carry else 0.0
+        cols.append(col)
+    return np.concatenate(cols) if cols else np.empty(0)
+
+
 def campaign_regressors(model: IsolatorModel, z: Sequence[np.ndarray],
                         zd: Sequence[np.ndarray], dt: float) -> np.ndarray:
     """Z (Σn, J): each term's basis on every sample of the runs, in order."""
-    codes, gated = model.structure()
-    state = np.zeros(len(model.terms))
-    blocks = []
-    for zr, zdr in zip(z, zd):
-        zr, zdr = np.ascontiguousarray(zr, float), np.ascontiguousarray(zdr, float)
-        Z = np.empty((zr.size, len(model.terms)))
-        for j, t in enumerate(model.terms):
-            shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
-            col = np.empty(zr.size)
-            end = _series(codes[j], gated[j], *shape, zr, zdr, model.dead_band, dt, state[j],
-                          col)
-            Z[:, j] = col
-            if t.kind == "thermal_damper":  # the fluid stays warm into the next run
-                state[j] = end
-        blocks.append(Z)
-    return np.vstack(blocks)
+    n = sum(np.size(zr) for zr in z)
+    return np.column_stack([campaign_column(model, j, z, zd, dt)
+                            for j in range(len(model.terms))]) if model.terms else np.empty((n, 0))

@@ -18,7 +18,7 @@ what the data say rather than by a linearisation at the base fit.
 
 A term with a state driven by the motion alone (a Bouc–Wen loop's r, the fluid's
 θ) has a regressor too, though not of each sample's (z, ż): its column is
-integrated along the whole runs (`regressors.campaign_regressors`), each run from
+integrated along the whole runs (`regressors.campaign_column`), each run from
 a zero state or the fluid carried warm from one run into the next, and handed to
 the projection beside Eq 10's columns; the way that fits better is the start's.
 A base fit far from an unseen thermal drift (α 356 1/m against 81, 409 x noise)
@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from analysis.identify.pipeline import LINEAR
-from analysis.identify.regressors import campaign_regressors
+from analysis.identify.regressors import campaign_column
 from analysis.identify.varpro import Data, project
 from analysis.loop.candidates import Candidate
 from analysis.model.isolator import IsolatorModel
@@ -99,9 +99,8 @@ def state_columns(model: IsolatorModel, name: str, runs: Moving) -> dict[bool, n
     from zero (True) or from where the run before left it (False; the same column for
     a state the regressors reset each run)."""
     j = [t.name for t in model.terms].index(name)
-    carried = campaign_regressors(model, runs.z, runs.zd, runs.dt)[:, j]
-    fresh = np.concatenate([campaign_regressors(model, [z], [zd], runs.dt)[:, j]
-                            for z, zd in zip(runs.z, runs.zd)])
+    carried = campaign_column(model, j, runs.z, runs.zd, runs.dt)
+    fresh = campaign_column(model, j, runs.z, runs.zd, runs.dt, carried=False)
     out = {True: fresh[runs.mask]}
     if not np.array_equal(carried, fresh):
         out[False] = carried[runs.mask]
