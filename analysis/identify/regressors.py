@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-from analysis.model.isolator import IsolatorModel
+from analysis.model.isolator import IsolatorModel, Term
 from analysis.model.terms import basis, kind, state_rate
 
 # numba caches this module's compiled code against this file alone, and terms.basis
@@ -76,6 +76,12 @@ def term_column(model: IsolatorModel, j: int, z: np.ndarray, zd: np.ndarray) -> 
     return col
 
 
+def carries_state(term: Term) -> bool:
+    """Whether the term's state stays into the next run: the fluid stays warm; every
+    other state starts each run at zero."""
+    return term.kind == "thermal_damper"
+
+
 def campaign_column(model: IsolatorModel, j: int, z: Sequence[np.ndarray],
                     zd: Sequence[np.ndarray], dt: float, carried: bool = True) -> np.ndarray:
     """Term j's basis on every sample of the runs, in order. A fluid's temperature stays
@@ -84,7 +90,7 @@ def campaign_column(model: IsolatorModel, j: int, z: Sequence[np.ndarray],
     codes, gated = model.structure()
     t = model.terms[j]
     shape = tuple(t.shape) + (0.0,) * (3 - len(t.shape))
-    carry = carried and t.kind == "thermal_damper"  # the fluid stays warm into the next run
+    carry = carried and carries_state(t)
     state, cols = 0.0, []
     for zr, zdr in zip(z, zd):
         zr, zdr = np.ascontiguousarray(zr, float), np.ascontiguousarray(zdr, float)

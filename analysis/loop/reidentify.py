@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from analysis.identify.pipeline import LINEAR
-from analysis.identify.regressors import campaign_column
+from analysis.identify.regressors import campaign_column, carries_state
 from analysis.identify.varpro import Data, project
 from analysis.loop.candidates import Candidate
 from analysis.model.isolator import IsolatorModel
@@ -99,11 +99,12 @@ def state_columns(model: IsolatorModel, name: str, runs: Moving) -> dict[bool, n
     from zero (True) or from where the run before left it (False; the same column for
     a state the regressors reset each run)."""
     j = [t.name for t in model.terms].index(name)
-    carried = campaign_column(model, j, runs.z, runs.zd, runs.dt)
     fresh = campaign_column(model, j, runs.z, runs.zd, runs.dt, carried=False)
     out = {True: fresh[runs.mask]}
-    if not np.array_equal(carried, fresh):
-        out[False] = carried[runs.mask]
+    if carries_state(model.terms[j]):  # else the carried column is this one again
+        carried = campaign_column(model, j, runs.z, runs.zd, runs.dt)
+        if not np.array_equal(carried, fresh):
+            out[False] = carried[runs.mask]
     return out
 
 
