@@ -302,6 +302,28 @@ def test_rows_that_start_apart_are_each_predicted_as_alone():
     assert np.max(np.abs(together[0][1] - together[0][0])) > 10 * data[0].sigma_x
 
 
+def test_a_drift_row_in_a_batch_is_predicted_as_alone_across_the_runs():
+    """The fluid temperature a run leaves is carried into the next: each row of a batch
+    must carry its own, by its own cooling time, to the last bit, whatever rows share
+    its batch. A refit's residual and Jacobian are rows of one batch, each with its
+    trial c_T and τ; the report predicts the fitted row alone."""
+    from analysis.loop.refit import predict
+
+    data = [r.data for r in campaign(seed=4)]
+    c = CANDIDATES["thermal_damping_drift"].shaped((0.8, 5.0, 0.0))
+    model, p = c.add_to(report_model("average"))
+    # c_T (N/(m/s)/K) and the fluid's cooling time τ (s)
+    rows = np.array([[-400.0, 5.0], [-900.0, 2.0], [-150.0, 40.0], [-600.0, 1.5]])
+    names = (p, f"{p}.tau")
+    together = predict(Hypothesis(model), data, names, rows)
+    for i, row in enumerate(rows):
+        alone = predict(Hypothesis(model).with_values(dict(zip(names, row))), data)
+        for k in range(len(data)):
+            np.testing.assert_array_equal(together[k][i], alone[k][0])
+    # the drift is there: run C, after A and B heated the fluid, differs row to row
+    assert np.max(np.abs(together[2][1] - together[2][0])) > 10 * data[2].sigma_x
+
+
 def test_a_constant_that_moves_nothing_has_no_finite_std():
     """A drift's limit far above any θ the runs heat the fluid to moves no sample: its
     Jacobian column is nil, and pinv gives it variance 0 — an exact value, and an

@@ -67,8 +67,7 @@ def predicted_states(fit: Fit, runs: Sequence[LoopRun]
 def diverging_runs(fit: Fit, runs: Sequence[LoopRun]) -> list[str]:
     """The runs whose lone prediction by the fit runs away (`refit.runs_away`): a
     thermal term whose falling viscosity takes the damping below zero late in run C
-    predicts z 1e177 m there, while the refit's batch of rows, whose fluid temperature
-    differs from it in the last bits, stayed finite."""
+    predicts z 1e177 m there."""
     z, zd = predicted_states(fit, runs)
     return [r.data.name for r, a, b in zip(runs, z, zd) if runs_away(a) or runs_away(b)]
 
