@@ -284,22 +284,28 @@ def test_rows_that_start_apart_are_each_predicted_as_alone():
     their sensor map says the mass started: a sensor gain moves the start. Each row of
     the batch must be the prediction that row makes alone, to the last bit (the fits'
     decisions follow their last bits), and the rows must differ."""
-    import numpy as np
-
     from analysis.identify.run_data import start_state
-    from analysis.loop.refit import Hypothesis, predict
 
     data = [r.data for r in campaign("sensor_gain=0.05", seed=2)]
     h = Hypothesis(report_model("average"))
     rows = np.array([[0.0, 0.0], [0.05, 0.0], [-0.03, 0.002]])  # gain, delay
     # run B rests off centre in the dead band: each gain puts its start elsewhere
     assert len({start_state(data[1], g, h.model.dead_band) for g in rows[:, 0]}) == 3
-    together = predict(h, data, ("sensor_gain", "sensor_delay"), rows)
+    together = _each_row_as_alone(h, data, ("sensor_gain", "sensor_delay"), rows)
+    assert np.max(np.abs(together[0][1] - together[0][0])) > 10 * data[0].sigma_x
+
+
+def _each_row_as_alone(h: Hypothesis, data, names, rows: np.ndarray) -> list[np.ndarray]:
+    """`predict` of the rows as one batch, checked row by row against each row alone to
+    the last bit."""
+    from analysis.loop.refit import predict
+
+    together = predict(h, data, names, rows)
     for i, row in enumerate(rows):
-        alone = predict(h.with_values(dict(zip(("sensor_gain", "sensor_delay"), row))), data)
+        alone = predict(h.with_values(dict(zip(names, row))), data)
         for k in range(len(data)):
             np.testing.assert_array_equal(together[k][i], alone[k][0])
-    assert np.max(np.abs(together[0][1] - together[0][0])) > 10 * data[0].sigma_x
+    return together
 
 
 def test_a_drift_row_in_a_batch_is_predicted_as_alone_across_the_runs():
@@ -307,19 +313,13 @@ def test_a_drift_row_in_a_batch_is_predicted_as_alone_across_the_runs():
     must carry its own, by its own cooling time, to the last bit, whatever rows share
     its batch. A refit's residual and Jacobian are rows of one batch, each with its
     trial c_T and τ; the report predicts the fitted row alone."""
-    from analysis.loop.refit import predict
-
     data = [r.data for r in campaign(seed=4)]
     c = CANDIDATES["thermal_damping_drift"].shaped((0.8, 5.0, 0.0))
     model, p = c.add_to(report_model("average"))
     # c_T (N/(m/s)/K) and the fluid's cooling time τ (s)
     rows = np.array([[-400.0, 5.0], [-900.0, 2.0], [-150.0, 40.0], [-600.0, 1.5]])
     names = (p, f"{p}.tau")
-    together = predict(Hypothesis(model), data, names, rows)
-    for i, row in enumerate(rows):
-        alone = predict(Hypothesis(model).with_values(dict(zip(names, row))), data)
-        for k in range(len(data)):
-            np.testing.assert_array_equal(together[k][i], alone[k][0])
+    together = _each_row_as_alone(Hypothesis(model), data, names, rows)
     # the drift is there: run C, after A and B heated the fluid, differs row to row
     assert np.max(np.abs(together[2][1] - together[2][0])) > 10 * data[2].sigma_x
 

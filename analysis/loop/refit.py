@@ -87,18 +87,18 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
             delay = rows[:, j]
         else:
             V[:, idx[n]] = rows[:, j]
-    # the fluid temperature a run leaves is carried by each row's own cooling time, which
-    # a refit frees: carried by the start's, a refit could move τ a thousandfold while
-    # every trial's next run began at the temperature the start's τ left, and the fitted
-    # model predicted alone was not the model fitted. The seals' state is carried by
-    # `h`'s loop shape for every row, a refit's trial a and b acting within runs only (a
-    # known gap): carried by each row's own, two unseen Bouc–Wen campaigns (one with a
-    # sensor gain) were named nothing where they were named right (1.48 x noise for the
-    # pair), the refit of the library's loop against another's shape ending insignificant
-    thermal = [(j, _shape_rows(h.model, V, j)) for j, t in enumerate(h.model.terms)
-               if t.kind == "thermal_damper"]
-    hysteretic = [(j, np.tile(t.shape, (V.shape[0], 1))) for j, t in enumerate(h.model.terms)
-                  if t.kind == "bouc_wen"]
+    # the fluid temperature a run leaves is carried by each row's own heating and cooling
+    # time, which a refit frees: carried by the start's, a refit could move τ a
+    # thousandfold while every trial's next run began at the temperature the start's τ
+    # left, and the fitted model predicted alone was not the model fitted
+    thermal = [(j, [V[:, idx[n]] for n in t.shape_names()[:2]])
+               for j, t in enumerate(h.model.terms) if t.kind == "thermal_damper"]
+    # the seals' state is carried by `h`'s loop shape for every row, a refit's trial a and
+    # b acting within runs only (a known gap): carried by each row's own, two unseen
+    # Bouc–Wen campaigns (one with a sensor gain) were named nothing where they were
+    # named right (1.48 x noise for the pair), the refit of the library's loop against
+    # another's shape ending insignificant
+    hysteretic = [(j, t.shape) for j, t in enumerate(h.model.terms) if t.kind == "bouc_wen"]
     S0 = np.zeros((rows.shape[0], len(h.model.terms)))
     if h.fresh_states or not (thermal or hysteretic):  # each run starts from zero states
         return _sensed(runs, gain, delay, _independent_runs(h, runs, V, S0, gain))
@@ -121,9 +121,8 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
             x[rows_z0] = b.z + b.u
             zd_all[rows_z0] = b.zd
         out += _sensed([run], gain, delay, [x])
-        for j, shape in thermal:
-            S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, shape[:, 0],
-                                               shape[:, 1])
+        for j, (heating, tau) in thermal:
+            S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
         for j, shape in hysteretic:  # the seals stay loaded while the mass rests
             S0[:, j] = hysteresis_after(S0[:, j], zd_all, run.dt, shape)
         z_end = x[:, -1] - run.motion(run.t[-1])
@@ -179,12 +178,6 @@ def runs_away(x: np.ndarray) -> bool:
 SETTLE = 3.0  # s: many times the isolator's slowest decay (m/c1 ≈ 0.45 s)
 
 
-def _shape_rows(model: IsolatorModel, V: np.ndarray, j: int) -> np.ndarray:
-    """Term j's shape constants in each row of the kernel's parameter vectors V (R, k)."""
-    o = model.vector_index()[model.terms[j].name]
-    return V[:, o + 1:o + 1 + len(model.terms[j].shape)]
-
-
 def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.ndarray,
             zd_end: np.ndarray, u_end: float, dt: float) -> np.ndarray:
     """Each row's z once the mass has come to rest after its run, the table held still;
@@ -198,17 +191,16 @@ def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.
                             s0=[S0[r:r + 1] for r in rows])
     for r, b in zip(rows, settled):
         for j, shape in hysteretic:
-            S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, shape[r:r + 1])[0]
+            S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, shape)[0]
         z_rest[r] = b.z[0, -1]
     return z_rest
 
 
 def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray,
-                     shape: np.ndarray, steps: int = 200) -> np.ndarray:
+                     shape: tuple[float, float, float], steps: int = 200) -> np.ndarray:
     """Bouc–Wen r after the mass moved straight from z_from to z_to (rows), e.g. settling
-    between runs: dr/dz = 1 − a sgn(dz) |r|ⁿ⁻¹ r − b |r|ⁿ, by RK4 in z; `shape` (a, b, n)
-    per row (R, 3), or one for all."""
-    a, b, n = np.asarray(shape, float).T
+    between runs: dr/dz = 1 − a sgn(dz) |r|ⁿ⁻¹ r − b |r|ⁿ, by RK4 in z."""
+    a, b, n = shape
     r = np.array(r0, float)
     h = (np.asarray(z_to, float) - np.asarray(z_from, float)) / steps
     sd = np.sign(h)
@@ -226,14 +218,12 @@ def hysteresis_along(r0: np.ndarray, z_from: np.ndarray, z_to: np.ndarray,
 
 
 def hysteresis_after(r0: np.ndarray, zd: np.ndarray, dt: float,
-                     shape: np.ndarray) -> np.ndarray:
-    """Bouc–Wen r at the end of a run along the sampled ż (R, n), shape (a, b, n) per
-    row (R, 3).
+                     shape: tuple[float, float, float]) -> np.ndarray:
+    """Bouc–Wen r at the end of a run along the sampled ż (R, n).
 
     r does not relax at rest, so a run starts with the state the last one left.
     """
-    return np.array([state_after(BOUC_WEN, tuple(sh), row, dt, r)
-                     for r, row, sh in zip(r0, zd, shape)])
+    return np.array([state_after(BOUC_WEN, shape, row, dt, r) for r, row in zip(r0, zd)])
 
 
 def fluid_temperature_after(theta0: np.ndarray, zd: np.ndarray, dt: float,
