@@ -10,7 +10,8 @@ carried on): that start with the dead band and stop velocity held, the model
 identified again by equation error with the candidate in it, α, β and δ searched
 (`reidentify`), and the best of a scan of sizes and the score's estimate; where
 still none reaches the noise, the constants the loop was given race too
-(`refit_from_start`).
+(`refit_from_start`), and the best, where it held the dead band or the stop velocity,
+is refitted on with them free (`with_stop_freed`).
 
 Whether the best refit is kept is `judge`'s to decide.
 """
@@ -201,6 +202,30 @@ def refit_from_start(start: Hypothesis | None, cf: Fit, h: Hypothesis, free: lis
     progress(f"loop: refitting with {c.name} from the starting constants")
     names = free + [s.name] + c.shape_parameters(h.model)
     return min([cf, race(both_ways(starts, names), runs, {s.name: c})], key=lambda f: f.rss)
+
+
+def with_stop_freed(cf: Fit, free: Sequence[str], s: Score, c: Candidate,
+                    runs: Sequence[LoopRun]) -> Fit | None:
+    """The candidate's best refit `cf` refitted on with the dead band and stop velocity
+    free too, where it ended above the noise with either held and that is lower and
+    bounded; None otherwise. The judge takes it before `cf`, and `cf` where it is refused.
+
+    The race frees them or holds them per start (`_held`), and the model identified
+    again with the candidate in it frees the dead band only: a start that wins with the
+    stop velocity held keeps the base fit's, which absorbed part of the effect. An
+    unseen drift (cooling in 4.1 s) ended so at 10.5 x noise, ε at the base fit's
+    19.4 mm/s; refitted on with it free, 2.07 x in 40 evaluations, ε 14.8 mm/s against
+    the generator's 15.2 and τ 4.07 s against 4.08. Freed, they can also fit what the
+    effect's shape misses in the runs fitted and lose the runs left out, and the judge's
+    held-out check must then fall back on `cf`: a simulated Bouc-Wen loop with ε freed
+    fell from 1.50 to 1.21 x noise and predicted runs B and C left out worse; kept
+    alone, the judge refused it and named the Coulomb friction it resembles.
+    """
+    held = [n for n in STOP if n in free and n not in cf.names]
+    if cf.residual_over_noise <= NOISE_LEVEL or not held:
+        return None
+    on = refit_free(cf.hypothesis, [r.data for r in runs], [*cf.names, *held], {s.name: c})
+    return on if on.rss < cf.rss and not diverging_runs(on, runs) else None
 
 
 RACE_NFEV = 10  # evaluations each raced start gets; the best then gets the rest of MAX_NFEV

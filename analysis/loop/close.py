@@ -51,6 +51,7 @@ from analysis.loop.candidate_fit import (
     constants_present,
     refit_from_start,
     reidentify_candidates,
+    with_stop_freed,
 )
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.conditioning import candidate_collinearities
@@ -266,4 +267,8 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
         # effect (`refit_from_start`)
         cf = refit_from_start(start, cf, cand_h, free, s, c, sizes, runs,
                               progress)
-    return (*judge(fit, free, runs, diag, [(s, c, cand_h, sizes, cf)], progress), cf)
+    refits = [(s, c, cand_h, sizes, cf)]
+    if (freed := with_stop_freed(cf, free, s, c, runs)) is not None:
+        refits.append((s, c, cand_h, sizes, freed))
+        cf = freed
+    return (*judge(fit, free, runs, diag, refits, progress), cf)
