@@ -22,7 +22,7 @@ import pytest
 from tests.test_unseen_generator import gen
 
 NAMES = {"hardening": "cubic_stiffness", "sensor_delay": "sensor_delay",
-         "sensor_gain": "sensor_gain"}
+         "sensor_gain": "sensor_gain", "asym_stiffness": "asymmetric_stiffness"}
 
 
 def _fit(seed: int, effects: tuple[str, ...], tmp_path: Path) -> dict:
@@ -50,7 +50,8 @@ def test_nothing_is_named_on_a_clean_unseen_campaign(tmp_path):
 
 
 @pytest.mark.parametrize("seed,effect", [(301, "hardening"), (305, "hardening"),
-                                         (901, "sensor_delay"), (1001, "sensor_gain")])
+                                         (901, "sensor_delay"), (1001, "sensor_gain"),
+                                         (403, "asym_stiffness")])
 def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
     """Seed 305's hardening is 6.5 % of the peak force: equation error ranks a preload
     first (BIC fall 27 against the cubic's 24), output error refuses it (|t| 0.3), and
@@ -60,16 +61,22 @@ def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
     Seed 1001's sensor gain is 3.3 %: at the constants identification gave, equation
     error names it first (BIC fall 28); at the base refit's, whose dead band and stop
     velocity have absorbed it, a one-sided stiffness comes first (18), which output
-    error keeps at 6.8 x noise if it is the one refitted."""
+    error keeps at 6.8 x noise if it is the one refitted.
+
+    Seed 403's spring is stiffer in compression by 13.2 kN/m (9.9 % of the peak force;
+    α δ = 2.1 at the truth): the base fit bends k2 tanh(αz) into a softening spring
+    across the stroke, and equation error with the compression spring keeps α small;
+    refitted only from there, the loop stopped at 4.1 x noise. From the spring
+    saturated at the dead band's edge (`reidentify._saturated`) it reaches the noise."""
     doc = _fit(seed, (effect,), tmp_path)
     assert doc["effects_added"] == [NAMES[effect]]
-    # the library's shape is the generator's for both: the residual reaches the noise
-    # (measured 1.01, 0.98 and 1.04 x; the issue asks for <= 1.3 x)
+    # the library's shape is the generator's for each: the residual reaches the noise
+    # (measured 1.01, 0.98, 1.04 and 0.99 x; the issue asks for <= 1.3 x)
     assert doc["residual_after"]["residual_over_noise"] < 1.3
     assert doc["unexplained"]["value"] is False
     truth = gen.make_campaign(seed, (effect,)).effects[0]
     param = {"hardening": ("k3", "k3"), "sensor_delay": ("sensor_delay", "d"),
-             "sensor_gain": ("sensor_gain", "g")}[effect]
+             "sensor_gain": ("sensor_gain", "g"), "asym_stiffness": ("k_comp", "k_a")}[effect]
     value = doc["parameters"][param[0]]["value"]
     assert value == pytest.approx(truth[param[1]], rel=0.10)
 

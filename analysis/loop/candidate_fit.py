@@ -103,7 +103,9 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
     iterations to get there). Otherwise a stateless effect is also started at the other
     shapes the library tries for it (`_other_shapes`), and the other starts are raced
     (`race`): the same start with the dead band and stop velocity held, the model
-    identified again with the candidate in it, and the best size of a scan.
+    identified again with the candidate in it, and the best size of a scan. That model
+    with k2 tanh(αz) saturated at the dead band's edge, where equation error cannot
+    tell it from the soft α it chose, is refitted to the end beside appendix A's start.
     """
     data = [r.data for r in runs]
     names = free + [s.name] + c.shape_parameters(cand_h.model)
@@ -130,18 +132,13 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
         # (`reidentify`): the base fit's compromise never seen. The dead band is refitted
         # from there too: a base fit that closed it to mimic a dry friction cannot
         # open it again otherwise
-        h0 = replace(cand_h, model=again.model).with_values(again.sensor)
-        if again.fresh_states is not None:
-            h0 = replace(h0, fresh_states=again.fresh_states)
-        # the terms of Eq 10 are those the identification with the candidate finds: a
-        # k2 tanh(αz) the base fit closed may come back beside a cubic spring
-        # and the shape constants are those of the shape it chose (a drift's limit)
-        chosen = c.shaped(again.model.term(s.name).shape) if c.term_kind else c
-        own = list(dict.fromkeys([*constants_present(again.model),
-                                  *(n for n in names if n not in BASE_FREE
-                                    and n not in c.shape_parameters(cand_h.model)),
-                                  *chosen.shape_parameters(again.model), "delta"]))
-        entries += [(h0, n) for n in _unique([own, _held(own)])]
+        entries += _identified_entries(again, cand_h, names, s, c)
+        if again.saturated is not None:
+            # and at k2 tanh(αz) saturated at the dead band's edge, where equation error
+            # cannot tell the two apart (`reidentify._saturated`): refitted to the end,
+            # for ten evaluations leave it short of a valley it then reaches
+            fits += [refit_free(h0, data, n, {s.name: c}) for h0, n in
+                     _identified_entries(again.saturated, cand_h, names, s, c)]
     if stateful:
         entries += [(replace(h0, fresh_states=not h0.fresh_states), n)
                     for h0, n in entries[from_first:]]
@@ -154,6 +151,23 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
     if c.free_shape:  # the shape it was refitted at, which a start may have chosen
         c = c.shaped(best.hypothesis.model.term(s.name).shape)
     return s, c, cand_h, sizes, best
+
+
+def _identified_entries(again: Reidentified, cand_h: Hypothesis, names: list[str], s: Score,
+                        c: Candidate) -> list[tuple[Hypothesis, list[str]]]:
+    """Race entries from a model identified again with the candidate in it, both ways."""
+    h0 = replace(cand_h, model=again.model).with_values(again.sensor)
+    if again.fresh_states is not None:
+        h0 = replace(h0, fresh_states=again.fresh_states)
+    # the terms of Eq 10 are those the identification with the candidate finds: a
+    # k2 tanh(αz) the base fit closed may come back beside a cubic spring
+    # and the shape constants are those of the shape it chose (a drift's limit)
+    chosen = c.shaped(again.model.term(s.name).shape) if c.term_kind else c
+    own = list(dict.fromkeys([*constants_present(again.model),
+                              *(n for n in names if n not in BASE_FREE
+                                and n not in c.shape_parameters(cand_h.model)),
+                              *chosen.shape_parameters(again.model), "delta"]))
+    return [(h0, n) for n in _unique([own, _held(own)])]
 
 
 def _other_shapes(fits: list[Fit], runs: Sequence[LoopRun], s: Score, c: Candidate,
