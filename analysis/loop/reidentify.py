@@ -173,8 +173,13 @@ def _saturated(r: Reidentified, c: Candidate, param: str, runs: Moving, free: Se
     """
     p = r.model.parameters()
     delta = p.get("delta", 0.0)
-    if ("alpha" not in p or p.get("k2", 0.0) == 0.0 or delta <= 0.0
-            or p["alpha"] * delta >= SOFT_EDGE):
+    # not for a force that does not change the spring's shape along z: a constant
+    # offset (refitted from the saturated spring, an unseen offset's model then took a
+    # preload beside it, 1.03 x noise against 1.01 x the offset alone), and a preload,
+    # the saturated spring's look-alike, whose own starts search the valley where the
+    # two trade (`candidate_fit._split_starts`)
+    if (c.takes_over == "k2" or c.term_kind == "force_offset" or "alpha" not in p
+            or p.get("k2", 0.0) == 0.0 or delta <= 0.0 or p["alpha"] * delta >= SOFT_EDGE):
         return r
     data = runs.data
     if kind(c.term_kind).has_state:  # its column as `r` started the runs (α moves it not)
