@@ -173,11 +173,9 @@ def _saturated(r: Reidentified, c: Candidate, param: str, runs: Moving, free: Se
     """
     p = r.model.parameters()
     delta = p.get("delta", 0.0)
-    # not for a force that does not change the spring's shape along z: a constant
-    # offset (refitted from the saturated spring, an unseen offset's model then took a
-    # preload beside it, 1.03 x noise against 1.01 x the offset alone), and a preload,
-    # the saturated spring's look-alike, whose own starts search the valley where the
-    # two trade (`candidate_fit._split_starts`)
+    # not for a force that does not bend the spring's shape along z: a constant offset;
+    # nor for a preload, the saturated spring's look-alike, whose own starts search the
+    # valley where the two trade (`candidate_fit._split_starts`)
     if (c.takes_over == "k2" or c.term_kind == "force_offset" or "alpha" not in p
             or p.get("k2", 0.0) == 0.0 or delta <= 0.0 or p["alpha"] * delta >= SOFT_EDGE):
         return r
