@@ -34,6 +34,7 @@ MIN_DROP = 0.02  # of the residual sum of squares
 # campaign cut 1.39 -> 1.22 x noise, 0.66 σ)
 MIN_EXPLAINED = 1.0
 WITHOUT_NFEV = 15  # evaluations of the model without a candidate, refitted from its fit
+HANDED_EDGE = 2.0  # α δ of a spring handed a preload's force back: tanh 0.96 at the edge
 
 
 def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
@@ -65,7 +66,7 @@ def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
     for _, s, c, cf in sorted(passing, key=lambda p: p[0]):
         # checked in the order of validation: one refit per step where the best passes
         without = _without(cf, list(dict.fromkeys(free + [n for n in ("delta",) if n in cf.names])),
-                           s.name, data)
+                           s.name, data, c)
         if rebase := _rebase(fit, without, c):
             # the model as it is has a better optimum: every candidate must be judged
             # against that, so the step is done again from it before anything is named
@@ -135,7 +136,7 @@ def look_alike(fit: Fit, name: str) -> tuple[str, float] | None:
     return (fit.names[k], float(corr[k])) if corr[k] > MAX_CORRELATION else None
 
 
-def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
+def _without(cf: Fit, free: list[str], name: str, data, c: Candidate | None = None) -> Fit:
     """The model without the candidate, refitted from the candidate fit's constants.
 
     The cost is many-valleyed (where the mass rests in the dead band moves in steps),
@@ -147,7 +148,32 @@ def _without(cf: Fit, free: list[str], name: str, data) -> Fit:
     fold refits: an unconverged refit only makes the check more lenient.
     """
     h = cf.hypothesis.with_values({name: 0.0})
-    return refit_free(h, data, free, {}, max_nfev=WITHOUT_NFEV)
+    plain = refit_free(h, data, free, {}, max_nfev=WITHOUT_NFEV)
+    back = _handed_back(cf, name, c)
+    if back is None:
+        return plain
+    handed = refit_free(back, data, list(dict.fromkeys([*free, "k2", "alpha"])), {},
+                        max_nfev=WITHOUT_NFEV)
+    return min(plain, handed, key=lambda f: f.rss)
+
+
+def _handed_back(cf: Fit, name: str, c: Candidate | None) -> Hypothesis | None:
+    """The model without a candidate that stands in for k2 tanh(αz) saturated at the dead
+    band's edge (a preload, `Candidate.takes_over`), its force handed back to that term.
+
+    Refitted with the candidate, the spring can go to nothing and the candidate take its
+    force: on an unseen campaign with a force offset and no preload, k2 tanh(αz) (816 N
+    at α δ 1.56) became γ 811 N with α 0.0004 1/m, and the model without the preload,
+    refitted from there, could not grow the spring back.
+    """
+    if c is None or c.takes_over != "k2":
+        return None
+    p = cf.hypothesis.model.parameters()
+    delta = p.get("delta", 0.0)
+    if "alpha" not in p or "k2" not in p or delta <= 0.0:
+        return None
+    return cf.hypothesis.with_values({name: 0.0, "k2": p["k2"] + abs(p[name]),
+                                      "alpha": max(p["alpha"], HANDED_EDGE / delta)})
 
 
 def own_parameters(fit: Fit, name: str) -> set[str]:
