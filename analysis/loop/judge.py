@@ -145,7 +145,9 @@ def _without(cf: Fit, free: list[str], name: str, data, c: Candidate | None = No
     offset was named at 1.35 σ, a cubic spring cut the residual 12 %, and the model
     without it, refitted from the cubic fit's constants, reached 1.05 σ. The cut that
     counts is the one over the better of the two fits. A few iterations, like the
-    fold refits: an unconverged refit only makes the check more lenient.
+    fold refits: an unconverged refit only makes the check more lenient. For a
+    candidate that stands in for k2 tanh(αz), also from its force handed back to that
+    term (`_handed_back`); the better refit is the model without it.
     """
     h = cf.hypothesis.with_values({name: 0.0})
     plain = refit_free(h, data, free, {}, max_nfev=WITHOUT_NFEV)

@@ -186,12 +186,9 @@ def _saturated(r: Reidentified, c: Candidate, param: str, runs: Moving, free: Se
     best = None
     for edge in SATURATED_EDGE:
         m = r.model.with_parameters(alpha=edge / delta)
-        proj = project(m, data, ("beta", "delta"), free=free, signed=signed)
-        values = proj.fit.as_dict()
-        if (np.isfinite(proj.fit.sigma2) and c.sign * values[param] >= 0
-                and all(v > 0 for n, v in values.items() if n not in signed)
-                and (best is None or proj.fit.sigma2 < best.sigma2)):
-            best = Reidentified(proj.model, proj.fit.sigma2, r.fresh_states)
+        at = _projected(m, c, param, data, free, signed, r.fresh_states, ("beta", "delta"))
+        if at is not None and (best is None or at.sigma2 < best.sigma2):
+            best = at
     if best is None or best.sigma2 > (1.0 + INDISTINCT) * r.sigma2:
         return r
     return replace(r, saturated=best)
@@ -238,9 +235,11 @@ def _reshaped(model: IsolatorModel, param: str, shape: tuple[float, ...]) -> Iso
 
 
 def _projected(model: IsolatorModel, c: Candidate, param: str, data: Data,
-               free: Sequence[str], signed: Sequence[str], fresh: bool | None
-               ) -> Reidentified | None:
-    proj = project(model, data, SHAPES, free=free, signed=signed)
+               free: Sequence[str], signed: Sequence[str], fresh: bool | None,
+               shapes: Sequence[str] = SHAPES) -> Reidentified | None:
+    """The candidate's model projected with `shapes` searched; None where the candidate
+    comes out of its own sign or another spring or damper not positive."""
+    proj = project(model, data, shapes, free=free, signed=signed)
     values = proj.fit.as_dict()
     if not np.isfinite(proj.fit.sigma2) or c.sign * values[param] < 0 or np.any(
             [v <= 0 for n, v in values.items() if n not in signed]):
