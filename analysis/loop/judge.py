@@ -22,6 +22,7 @@ from analysis.loop.candidate_fit import NOISE_LEVEL, SHAPE_CONSTANTS
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.evidence import Diagnosis
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free
+from analysis.loop.reidentify import STEP_EDGE
 from analysis.loop.result import Step
 from analysis.loop.runs import LoopRun, diverging_runs, predicted_signature, run_errors
 from analysis.loop.validation import held_out
@@ -34,7 +35,6 @@ MIN_DROP = 0.02  # of the residual sum of squares
 # campaign cut 1.39 -> 1.22 x noise, 0.66 σ)
 MIN_EXPLAINED = 1.0
 WITHOUT_NFEV = 15  # evaluations of the model without a candidate, refitted from its fit
-HANDED_EDGE = 2.0  # α δ of a spring handed a preload's force back: tanh 0.96 at the edge
 
 
 def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
@@ -175,7 +175,7 @@ def _handed_back(cf: Fit, name: str, c: Candidate | None) -> Hypothesis | None:
     if "alpha" not in p or "k2" not in p or delta <= 0.0:
         return None
     return cf.hypothesis.with_values({name: 0.0, "k2": p["k2"] + abs(p[name]),
-                                      "alpha": max(p["alpha"], HANDED_EDGE / delta)})
+                                      "alpha": max(p["alpha"], STEP_EDGE / delta)})
 
 
 def own_parameters(fit: Fit, name: str) -> set[str]:

@@ -151,7 +151,8 @@ def with_candidate(model: IsolatorModel, c: Candidate, param: str, runs: Moving
 # α δ below which k2 tanh(αz) is a softening spring across the stroke rather than a step
 # at the dead band's edge, and the α δ values tried for the step (tanh 0.76 to 0.999)
 SOFT_EDGE = 1.0
-SATURATED_EDGE = (1.0, 2.0, 4.0)
+STEP_EDGE = 2.0  # a step at the edge: tanh 0.96 there (a preload's force handed back too)
+SATURATED_EDGE = (SOFT_EDGE, STEP_EDGE, 4.0)
 # σ² within this fraction of the chosen shape's: equation error cannot tell the two apart
 # (its ẍ is differentiated twice; output error can)
 INDISTINCT = 0.05
