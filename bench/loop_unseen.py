@@ -21,7 +21,8 @@ Its `effects_added` is scored against the generator's truth:
   which is the table's motion, not the isolator's).
 
 Also the residual after over the noise where the effect is one of the library's,
-how often "unexplained structure" is said, and the wall time per campaign (p50, p90).
+how often "unexplained structure" is said, and the wall time per campaign (p50, p90);
+then the same per generator effect (`per_effect`) and where the time goes (`wall_summary`).
 The peers of `bench/unseen/peers.py` (a stepwise equation-error fit with BIC, and
 PySINDy with a dead-band-gated library) are run on the same campaigns as the baseline.
 
@@ -151,6 +152,43 @@ def table(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def per_effect(rows: list[dict]) -> str:
+    """Exact / seeds and the residual after over the noise of each seed, per generator
+    effect or pair (clean campaigns together)."""
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(" + ".join(r["effects"]) or "clean", []).append(r)
+    lines = ["| generator effect | exact | residual after / noise, each seed |", "|---|---|---|"]
+    for name, rs in groups.items():
+        cells = []
+        for r in rs:
+            cell = "—" if r.get("residual_after") is None else f"{r['residual_after']:.2f}"
+            if r.get("error"):
+                cell += f" ({r['error'] if isinstance(r['error'], str) else 'failed'})"
+            elif set(r["named"]) != set(r["truth"]):
+                cell += f" ({' + '.join(r['named']) or 'nothing named'})"
+            cells.append(cell)
+        exact = sum(set(r["named"]) == set(r["truth"]) for r in rs)
+        lines.append(f"| {name} | {exact}/{len(rs)} | {', '.join(cells)} |")
+    return "\n".join(lines)
+
+
+def wall_summary(rows: list[dict]) -> str:
+    """Where the time goes: p50 with nothing to name and with an effect, how many
+    campaigns within 5 s and 15 s (the issue's median and worst), the longest."""
+    walls = np.array([r["wall"] for r in rows])
+    nothing = [r["wall"] for r in rows if not r["truth"]]
+    effect = [r["wall"] for r in rows if r["truth"]]
+    longest = max(rows, key=lambda r: r["wall"])
+    parts = [f"wall p50 {np.median(nothing):.1f} s with nothing to name" if nothing else "",
+             f"{np.median(effect):.1f} s with an effect" if effect else "",
+             f"{int((walls <= 5).sum())} of {len(rows)} within 5 s, "
+             f"{int((walls <= 15).sum())} within 15 s",
+             f"longest {longest['wall']:.0f} s (seed {longest['seed']})",
+             f"{walls.sum():.0f} s in all"]
+    return "; ".join(p for p in parts if p)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed of every effect and clean")
@@ -186,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
                            **run_peer(peer, s, e)} for s, e in todo]
     results = {name: score(r) for name, r in rows.items()}
     print(table(results))
+    print()
+    print(per_effect(rows["analysis fit"]))
+    print(wall_summary(rows["analysis fit"]))
     if a.out:
         a.out.write_text(json.dumps({"scores": results, "rows": rows}, indent=1) + "\n")
     return 0
