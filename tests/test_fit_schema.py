@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from analysis.cli import main
@@ -29,7 +30,7 @@ from analysis.fit_schema import (
     VariableProjection,
 )
 from analysis.identify.synthetic import synthetic_run
-from analysis.model.model_json import model_json
+from analysis.model.model_json import covariance_from, model_json
 from analysis.model.report_constants import report_model
 from rig.errors import DataError
 from rig.tui import fit_summary
@@ -114,3 +115,13 @@ def test_a_real_fit_document_reads_back_through_both_readers(tmp_path: Path) -> 
     summary = fit_summary.read_summary(out)
     assert [c.name for c in summary.constants] == list(result.parameters)
     assert summary.after == {r: e.residual_over_noise for r, e in result.loop.error_after.items()}
+
+
+def test_a_constant_the_data_did_not_determine_is_left_out_without_a_warning() -> None:
+    # c1's standard error is infinite and its correlations undefined: inf x 0 gave NaN
+    # with a RuntimeWarning on the user's terminal (an error here, pyproject's filterwarnings)
+    std = [2.0, np.inf, 1e-3]
+    corr = [[1.0, np.nan, 0.5], [np.nan, 1.0, np.nan], [0.5, np.nan, 1.0]]
+    block = model_json(report_model("A"), ["k1", "c1", "delta"], covariance_from(std, corr))
+    assert block["covariance"]["names"] == ["k1", "delta"]
+    assert np.allclose(block["covariance"]["matrix"], [[4.0, 1e-3], [1e-3, 1e-6]], rtol=1e-12)

@@ -77,11 +77,20 @@ class IdentifiedModel:
 
 
 def covariance_from(std: ArrayLike, correlation: ArrayLike) -> np.ndarray:
-    """Covariance from standard errors and correlations; an undefined correlation is 0."""
+    """Covariance from standard errors and correlations; an undefined correlation is 0.
+
+    A constant whose standard error is not finite (the data did not determine it) keeps
+    it on the diagonal and nothing off it, which `model_json` then leaves out; inf times
+    a correlation of 0 would be NaN, with a RuntimeWarning on the user's terminal.
+    """
     s = np.asarray(std, float)
     rho = np.nan_to_num(np.asarray(correlation, float), nan=0.0)
     np.fill_diagonal(rho, 1.0)
-    return rho * np.outer(s, s)
+    undetermined = np.flatnonzero(~np.isfinite(s))
+    finite = np.where(np.isfinite(s), s, 0.0)
+    cov = rho * np.outer(finite, finite)
+    cov[undetermined, undetermined] = s[undetermined] ** 2
+    return cov
 
 
 def model_json(model: IsolatorModel, names: Sequence[str] = (),
