@@ -86,9 +86,10 @@ def covariance_from(std: ArrayLike, correlation: ArrayLike) -> np.ndarray:
     s = np.asarray(std, float)
     rho = np.nan_to_num(np.asarray(correlation, float), nan=0.0)
     np.fill_diagonal(rho, 1.0)
-    undetermined = np.flatnonzero(~np.isfinite(s))
-    finite = np.where(np.isfinite(s), s, 0.0)
+    determined = np.isfinite(s)
+    finite = np.where(determined, s, 0.0)
     cov = rho * np.outer(finite, finite)
+    undetermined = np.flatnonzero(~determined)
     cov[undetermined, undetermined] = s[undetermined] ** 2
     return cov
 
