@@ -229,3 +229,22 @@ def test_a_friction_built_up_over_its_own_velocity_is_refitted_with_it(tmp_path)
     assert p["c3"]["value"] == pytest.approx(e["F_c"], rel=0.1)  # 4001 N against 4080
     # v_s trades with β and ε along the valley: measured 6.71 mm/s against 6.2
     assert p["c3.v_s"]["value"] == pytest.approx(e["v_s"], rel=0.25)
+
+
+def test_a_fit_stopped_short_in_a_narrow_valley_is_carried_on_to_the_noise(tmp_path):
+    """Seed 1004: a sensor gain of 7.8 % (12 % of the peak force). It is named and sized
+    right at once, but the refit with it stopped at 3.26 x noise with α at 70 against 84
+    1/m and β at 111 against 95 s/m: there the valley is narrower than the refit's
+    finite-difference step, the Jacobian points up its walls, and every trial step was
+    refused. The final fit carried on with finer steps (`polish`) walks to the noise and
+    brings back the generator's shape constants, not only the gain."""
+    doc = _fit(1004, ("sensor_gain",), tmp_path)
+    assert doc["effects_added"] == ["sensor_gain"]
+    assert doc["residual_after"]["residual_over_noise"] < 1.2  # measured 1.06
+    assert doc["unexplained"]["value"] is False
+    truth = gen.make_campaign(1004, ("sensor_gain",))
+    p = doc["parameters"]
+    assert p["sensor_gain"]["value"] == pytest.approx(truth.effects[0]["g"], rel=0.005)
+    # measured 84.41 against 84.44 1/m and 95.6 against 94.7 s/m (stopped: 70.5 and 111)
+    assert p["alpha"]["value"] == pytest.approx(truth.constants["alpha"], rel=0.03)
+    assert p["beta"]["value"] == pytest.approx(truth.constants["beta"], rel=0.05)

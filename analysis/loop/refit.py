@@ -280,8 +280,10 @@ class Fit:
 
 def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
           scales: Sequence[float], bounds: Sequence[tuple[float, float]],
-          fit_runs: Sequence[int] | None = None, max_nfev: int = MAX_NFEV) -> Fit:
-    """Least squares of the named parameters on the runs `fit_runs` (default all)."""
+          fit_runs: Sequence[int] | None = None, max_nfev: int = MAX_NFEV,
+          fd_step: float = FD_STEP) -> Fit:
+    """Least squares of the named parameters on the runs `fit_runs` (default all);
+    `fd_step`: the Jacobian's finite-difference step, of each scaled parameter."""
     names = tuple(names)
     scales = np.asarray(scales, float)
     use = list(range(len(runs))) if fit_runs is None else list(fit_runs)
@@ -290,7 +292,7 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
     lo = np.array([b[0] for b in bounds]) / scales
     hi = np.array([b[1] for b in bounds]) / scales
     start = np.clip(np.nan_to_num(start), lo, hi)
-    evaluator = _Evaluator(h, runs[:last], names, scales, use)
+    evaluator = _Evaluator(h, runs[:last], names, scales, use, fd_step)
     sol = least_squares(evaluator.residual, start, jac=evaluator.jacobian,
                         bounds=(lo, hi), method="trf", max_nfev=max_nfev)
     values = sol.x * scales
@@ -314,7 +316,7 @@ def refit(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str],
 
 def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
                candidates: dict[str, Candidate], fit_runs: Sequence[int] | None = None,
-               max_nfev: int = MAX_NFEV) -> Fit:
+               max_nfev: int = MAX_NFEV, fd_step: float = FD_STEP) -> Fit:
     """`refit` of the free parameters `names`, each at its size and within its bounds: a
     candidate's parameter (`candidates`, keyed by parameter) by its physics, the dead
     band within DEAD_BAND_BOUNDS, every other constant within 1/50 to 50 times its value
@@ -334,7 +336,8 @@ def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
             v, floor = h.value(n), shape_floor(h.model, n)
             scales.append(abs(v))
             bounds.append((max(min(0.02 * v, 50.0 * v), floor), max(0.02 * v, 50.0 * v)))
-    return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev)
+    return refit(h, data, names, scales, bounds, fit_runs=fit_runs, max_nfev=max_nfev,
+                 fd_step=fd_step)
 
 
 class _Evaluator:
@@ -350,15 +353,16 @@ class _Evaluator:
     same path.
     """
 
-    def __init__(self, h, runs, names, scales, use):
+    def __init__(self, h, runs, names, scales, use, fd_step=FD_STEP):
         self.h, self.runs, self.names, self.scales, self.use = h, runs, names, scales, use
+        self.fd_step = fd_step
         self.ahead = len(names) % max(numba.get_num_threads(), 1)
         self._rows: dict[bytes, tuple[list[np.ndarray], np.ndarray]] = {}  # θ → (x, residual)
         self._jac: tuple[bytes, np.ndarray] | None = None
 
     def _steps(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Finite-difference steps and the perturbed rows, exactly as one n + 1 batch."""
-        steps = FD_STEP * np.maximum(np.abs(theta), 1.0)
+        steps = self.fd_step * np.maximum(np.abs(theta), 1.0)
         rows = np.tile(theta, (len(self.names) + 1, 1))
         rows[1:] += np.diag(steps)
         return steps, rows[1:]
@@ -397,7 +401,7 @@ class _Evaluator:
                         / self.runs[k].sigma_x / steps[:, None]).T for k in self.use]
             J = np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0)
             # a perturbed row that diverged says nothing about the slope
-            J[np.abs(J) > UNSTABLE / FD_STEP] = 0.0
+            J[np.abs(J) > UNSTABLE / self.fd_step] = 0.0
             self._jac = (key, J)
         return self._jac[1]
 
