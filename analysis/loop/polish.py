@@ -5,12 +5,12 @@ integrator's noise and wide enough not to count single stick/slip events. Where 
 model has absorbed an effect's neighbourhood the valley can be narrower than that
 step: an unseen campaign with a 7.8 % sensor gain (seed 1004) ended at 3.26 x the
 noise, the gain and k1 within 0.2 % of the generator's, α at 70 against 84 1/m and β
-at 111 against 95 s/m. Moving 0.1 % in
-k1 alone doubled the cost there, the forward difference of c2 had the wrong sign, and
-every trust-region step the solver tried along that Jacobian was refused until xtol
-stopped it, while the cost fell smoothly all the way along the line to the
-generator's constants (3.26 at the stop, 1.14 nine tenths of the way). With steps of
-0.1 % the same refit walked on: 2.00, then from there 1.06 x the noise.
+at 111 against 95 s/m. There a 0.1 % change of k1 alone raised the cost by 77–93 %,
+the forward difference of c2 had the wrong sign, and every trust-region step the
+solver tried along that Jacobian was refused until xtol stopped it, while the cost
+fell smoothly all the way along the line to the generator's constants (3.26 at the
+stop, 1.14 nine tenths of the way). Restarted with the same step it stays; with
+steps of 0.1 % it walked on: 2.00, then from there 1.06 x the noise.
 
 So a final fit left well above the noise (where the loop would report structure it
 cannot explain) is refitted from where it stopped with finer steps, each while it
