@@ -55,11 +55,10 @@ def polished(fit: Fit, data: Sequence[RunData], candidates: dict[str, Candidate]
 def step_candidates(fit: Fit, steps: Sequence[Step]) -> dict[str, Candidate]:
     """The candidate of each added effect, keyed by its parameter, at the shape the final
     model has it (a refitted shape sizes and bounds the effect as it was refitted)."""
+    shapes = {t.name: t.shape for t in fit.hypothesis.model.terms}
     out = {}
     for s in steps:
         c = CANDIDATES[s.added]
-        model = fit.hypothesis.model
-        if c.term_kind and any(t.name == s.parameter for t in model.terms):
-            c = c.shaped(model.term(s.parameter).shape)
-        out[s.parameter] = c
+        out[s.parameter] = c.shaped(shapes[s.parameter]) if c.term_kind and \
+            s.parameter in shapes else c
     return out

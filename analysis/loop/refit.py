@@ -353,7 +353,7 @@ class _Evaluator:
     same path.
     """
 
-    def __init__(self, h, runs, names, scales, use, fd_step=FD_STEP):
+    def __init__(self, h, runs, names, scales, use, fd_step):
         self.h, self.runs, self.names, self.scales, self.use = h, runs, names, scales, use
         self.fd_step = fd_step
         self.ahead = len(names) % max(numba.get_num_threads(), 1)
