@@ -16,7 +16,7 @@ from scipy.interpolate import CubicSpline, PPoly
 
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import kind
-from analysis.simulate.kernel import simulate_jobs, simulate_one
+from analysis.simulate.kernel import simulate_jobs, simulate_one, workspace
 
 DEFAULT_DT = 1e-3  # s, output sample interval (the sensors' 1 kHz)
 DEFAULT_SUBSTEPS = 1  # RK4 steps per output sample: at 1 ms, 0.3 µm error on run A
@@ -84,7 +84,8 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
     f, s, st = np.empty((nt + 1, n)), np.empty((nt, n)), np.empty(n)
     breaks, coefs = np.ascontiguousarray(motion.x, float), np.ascontiguousarray(motion.c, float)
     simulate_one(kinds, gated, model.vector(), breaks, coefs, start, dt, n, substeps,
-                 z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, True)
+                 z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, True,
+                 *workspace(nt))
     t = start + dt * np.arange(n)
     u, ud, udd = _table(motion, t)
     forces = {term.name: f[j] for j, term in enumerate(model.terms)}
