@@ -30,9 +30,8 @@ import numpy as np
 
 from analysis.model.report_constants import RUNS, report_model
 from rig.config import load_config
-from sim.effects import parse_effect, with_effects
+from sim.effects import parse_effect
 from sim.faults import parse_faults
-from sim.plant import warm_up
 from sim.rig_sim import SimRig
 
 SWITCH_INTERVAL_S = 2e-4
@@ -64,7 +63,6 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    warm_up(with_effects(report_model(args.constants), effects))  # before the sensors run
     with SimRig(config, seed=args.seed, effects=effects, model=report_model(args.constants),
                 record_truth=args.truth_file is not None, faults=faults) as rig:
         state = {"pid": os.getpid(),

@@ -171,3 +171,25 @@ def _receive_ids(bus: can.BusABC, seconds: float) -> list[int]:
         if msg is not None:
             ids.append(msg.arbitration_id)
     return ids
+
+
+def test_a_slow_compile_does_not_leave_the_plant_catching_up(monkeypatch) -> None:
+    """The integrator is compiled before the rig's clock starts. A cold compile (90 s on
+    a 2-core EPYC) made after it left the plant's grid that far behind, and the first
+    run's sensors silent past the liveness limit while it caught up."""
+    import sim.rig_sim as rig_sim
+
+    compile_s = 0.5
+    real = rig_sim.warm_up
+
+    def slow_warm_up(model) -> None:
+        time.sleep(compile_s)  # what a cold numba cache costs, scaled down
+        real(model)
+
+    monkeypatch.setattr(rig_sim, "warm_up", slow_warm_up)
+    began = time.monotonic()
+    with rig_sim.SimRig(load_config()) as rig:
+        ready = time.monotonic()
+        # the grid starts after the compile, and is a chunk or so ahead of now, not behind
+        assert rig.t0 >= began + compile_s
+        assert rig.plant.computed_until >= ready - 0.05

@@ -110,7 +110,10 @@ async def test_estop_acts_from_every_focusable_widget_of_every_screen(
         rig: RigConfig, tmp_path: Path) -> None:
     out = tmp_path / "runs"
     write_run(out / "20250101T000000_A.h5", "success")  # a run for the traces view
-    spec = profile_file(tmp_path, "long", 1.0, 3.0)  # Setup shows its path in the file box
+    # Setup shows its path in the file box. Long enough that no run ends by itself while a
+    # view is brought up and a widget focused: 3 s ran out first on a loaded 2-core EPYC,
+    # and the space pressed then found a run that had ended in success
+    spec = profile_file(tmp_path, "long", 1.0, 20.0)
     app = RigApp(rig, out, profile=str(spec))
     reached: set[str] = set()
     focusable: set[str] = set()

@@ -16,7 +16,8 @@ Each step:
    starts race (a few evaluations each, δ and ε free and held, the best carried
    on); keep it (`judge`) if its parameter is
    significant (|t| > 3 with the residual's autocorrelation counted), not a
-   look-alike of a determined constant (|correlation| < 0.99), cuts the residual by
+   look-alike of a determined constant (|correlation| < 0.99, unless no constant can
+   take its place: at the noise with it, far above without), cuts the residual by
    at least 2 % and explains at least one sensor-noise RMS of the measured motion
    (less is below what the sensor resolves), also over the model without it
    refitted from the candidate fit's constants (the cut of a lower valley is not
