@@ -19,6 +19,8 @@ from analysis.model.report_constants import report_model
 from rig.errors import DataError
 from rig.runfile import RunInfo, RunWriter
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 INCH = 0.0254
 
 

@@ -9,10 +9,13 @@ true model fitted its own data at 1286 × the noise.
 """
 
 import numpy as np
+import pytest
 
 from analysis.identify.step_pulse import ramps_motion
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
+
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
 
 # the fit's numbers to the last digit: the lost event depends on them
 RAMPS = [(0.10000336387130673, 0.19999818228493838, 1.5757219668363704e-06, 0.1396993046215904),

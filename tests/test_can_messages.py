@@ -25,6 +25,8 @@ from rig.wire.can_messages import (
     TableSample,
 )
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 DB = cm.database()
 RESOLUTION = 1e-6  # m, Position signals
 

@@ -16,6 +16,8 @@ from rig.cli import main as rig_main
 from rig.units import INCH
 from sim.cli import main as sim_main
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def test_every_profile_is_chosen_with_profile(tmp_path: Path, capsys) -> None:
     assert rig_main(["profile", "--profile", "A"]) == 0

@@ -7,7 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from analysis.simulate.compiled import COMPILE_NOTE
+
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
 
 PROBE = ("from analysis.simulate.compiled import compiled_on_disk, warm_up; "
          "before = compiled_on_disk(); said = []; warm_up(said.append); "

@@ -9,6 +9,8 @@ from analysis.loop.conditioning import MIN_UNIQUE, collinearity
 from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 DT = 1e-3
 
 

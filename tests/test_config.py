@@ -20,6 +20,8 @@ from rig.errors import ConfigError, RigError
 from rig.paths import data_file
 from rig.units import INCH, POUND_FORCE, POUND_MASS
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 DEFAULT_TEXT = data_file("rig.toml").read_text(encoding="utf-8")
 
 

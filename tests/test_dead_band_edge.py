@@ -9,12 +9,15 @@ restarted from the same (z, ż) went elsewhere (105 × the sensor noise).
 """
 
 import numpy as np
+import pytest
 
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
 from rig.profile import load_profile
 from sim.effects import parse_effect, with_effects
 from sim.generate import PAUSE, campaign_profile
+
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
 
 GATED = ("k1", "k2", "c2")
 

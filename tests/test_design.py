@@ -34,6 +34,8 @@ from rig.cli_support import guarded
 from rig.errors import DataError
 from rig.units import STANDARD_GRAVITY, to_si
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 INCH = 0.0254
 MASS = float(to_si(6000, "lbm"))
 # the velocity step: the table's acceleration a triangle pulse of RAMP seconds from T0

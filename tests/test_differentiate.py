@@ -14,6 +14,8 @@ import pytest
 from analysis.signals.differentiate import METHODS, differentiate, estimate_noise
 from rig.profile import load_profile
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 SIGMA = 2.54e-5
 LIMITS = {"savgol": (2.6e-3, 0.73), "butter": (2.1e-3, 0.65), "spline": (2.8e-3, 1.21),
           "rts": (2.2e-3, 0.68)}  # m/s, m/s²

@@ -32,6 +32,8 @@ from analysis.force_driven.loading import ForceRecord
 from analysis.force_driven.model import base_terms
 from analysis.force_driven.simulate import simulate_position
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 FS = 1000.0
 DURATION = 30.0
 TRUE = {"mass": 2.0, "viscous": 30.0, "stiffness": 2000.0, "coulomb_friction": 3.0,

@@ -26,6 +26,8 @@ from rig.profile import (
 )
 from rig.units import INCH, POUND_FORCE, POUND_MASS
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 CONFIG = load_config()
 MASS = 13_000 * POUND_MASS  # 7,000 lb platform + 6,000 lb payload
 X_ACTUATORS = [1, 2, 3, 4]

@@ -8,6 +8,8 @@ import pytest
 from analysis.identify.equation_error import fit_coefficients, solve
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def test_small_case_by_hand() -> None:
     # Z = [[1,0],[0,1],[1,1]], y = [1,2,4]: A = ZᵀZ = [[2,1],[1,2]], b = Zᵀy = [5,6],

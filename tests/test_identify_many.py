@@ -24,6 +24,8 @@ from analysis.identify.pipeline import identify
 from analysis.identify.synthetic import SENSOR_NOISE, synthetic_runs
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 SEEDS = (11, 12, 13, 14)
 Z_MAX = 4.0
 

@@ -12,6 +12,8 @@ from analysis.identify import loading
 from analysis.identify.synthetic import synthetic_run
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 MASS = report_model("average").mass
 WARNING = "faster than any isolator test"
 

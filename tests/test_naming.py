@@ -27,6 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ is not in
 from bench.unseen.generator import EFFECTS, MASS, make_campaign
 from bench.unseen.peers import EFFECT_NAMES
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def _named(seed: int, effects: list[str]):
     c = make_campaign(seed, effects)

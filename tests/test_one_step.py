@@ -15,6 +15,8 @@ from analysis.identify.pipeline import identify
 from analysis.identify.synthetic import synthetic_runs
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 @pytest.fixture(scope="module")
 def joint():

@@ -40,6 +40,8 @@ from sim.cli import main as sim_main
 from sim.effects import parse_effect
 from sim.generate import generate_campaign
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 INCH = 0.0254
 
 

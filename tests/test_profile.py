@@ -8,6 +8,8 @@ import pytest
 from rig.errors import ConfigError
 from rig.profile import load_profile, parse_profile
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 INCH = 0.0254
 
 

@@ -23,6 +23,8 @@ from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 DT = 1e-3
 STEP = 0.1397  # m, the report's 5.5 in
 C_T = -9000.0  # N/(m/s)/K: at the runs' peak θ (~0.3 K) the drift takes ~40 % of c1

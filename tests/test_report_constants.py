@@ -18,6 +18,8 @@ from analysis.model.report_constants import (
 from rig.paths import data_file
 from rig.units import from_si, to_si
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def test_table1_round_trip_us_si_us():
     raw = tomllib.loads(data_file("table1.toml").read_text())

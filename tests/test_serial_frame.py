@@ -17,6 +17,8 @@ from rig.wire.serial_frame import (
     encode_frame,
 )
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 _U32 = st.integers(0, 2**32 - 1)
 _I32 = st.integers(-(2**31), 2**31 - 1)
 _PAYLOAD = st.tuples(_U32, _I32, st.integers(0, 255))  # timestamp_us, counts, status

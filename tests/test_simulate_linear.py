@@ -17,6 +17,8 @@ from analysis.model.isolator import IsolatorModel, Term
 from analysis.simulate import simulate
 from rig.profile import Profile, Segment
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def exact_linear_response(m: float, k: float, c: float, motion: PPoly, t: np.ndarray):
     """z(t), ż(t) of m z̈ + c ż + k z = −m ü, starting at rest; exact on each piece."""

@@ -10,6 +10,8 @@ import pytest
 from analysis.simulate import simulate
 from rig.profile import PEAK_ACCELERATION_FACTOR, Profile, Segment
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 def gentle_ramp(peak_force: float, mass: float) -> Profile:
     """A 1 s ramp whose peak inertial force m·|ü| is `peak_force` (N)."""

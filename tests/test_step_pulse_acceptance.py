@@ -12,6 +12,8 @@ from analysis.identify.synthetic import synthetic_runs
 from analysis.identify.table_motion import estimate_table_motion
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 @pytest.mark.parametrize("seed, run", [(1050, 0), (1052, 1), (1058, 1)])
 def test_single_ramps_kept_under_unlucky_noise(seed, run):

@@ -9,6 +9,8 @@ from scipy import signal
 from analysis.identify.table_motion import estimate_table_motion
 from sim.generate import SENSOR_NOISE, generate_campaign
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 @pytest.fixture(scope="module")
 def campaign():

@@ -14,6 +14,8 @@ from analysis.model.terms import BOUC_WEN, KINDS, basis, kind
 from analysis.simulate import simulate, simulate_batch
 from rig.profile import Profile, Segment
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 # the formulas as the report writes them, independent of the kernel
 EXPECTED = {
     "linear_spring": lambda z, zd, a: z,

@@ -9,6 +9,8 @@ from analysis.identify.synthetic import synthetic_runs
 from analysis.identify.varpro import Gram, _cost
 from analysis.model.report_constants import report_model
 
+pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+
 
 @pytest.fixture(scope="module")
 def data():
