@@ -16,18 +16,10 @@ from analysis.simulate.compiled import warm_up
 from rig.config import load_config
 from rig.profile import load_profile
 from sim.rig_sim import SimRig
-from tests.machine_share import around_test
 
 # The fits in this process run as the `analysis` CLI runs them: BLAS on one thread
 # (analysis/blas.py).
 one_blas_thread()
-
-
-@pytest.hookimpl(hookwrapper=True, tryfirst=True)
-def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
-    """Under pytest-xdist, a test against the clock runs alone (tests/machine_share.py);
-    outermost, so a wait for the machine is not counted in the test's timeout."""
-    yield from around_test(item, nextitem)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -19,7 +19,7 @@ from analysis.model.report_constants import report_model
 from rig.errors import DataError
 from rig.runfile import RunInfo, RunWriter
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 INCH = 0.0254
 

@@ -15,7 +15,7 @@ from analysis.identify.step_pulse import ramps_motion
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 # the fit's numbers to the last digit: the lost event depends on them
 RAMPS = [(0.10000336387130673, 0.19999818228493838, 1.5757219668363704e-06, 0.1396993046215904),

@@ -25,7 +25,7 @@ from rig.wire.can_messages import (
     TableSample,
 )
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 DB = cm.database()
 RESOLUTION = 1e-6  # m, Position signals

@@ -16,7 +16,7 @@ from rig.cli import main as rig_main
 from rig.units import INCH
 from sim.cli import main as sim_main
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def test_every_profile_is_chosen_with_profile(tmp_path: Path, capsys) -> None:

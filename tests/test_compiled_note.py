@@ -11,7 +11,7 @@ import pytest
 
 from analysis.simulate.compiled import COMPILE_NOTE
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 PROBE = ("from analysis.simulate.compiled import compiled_on_disk, warm_up; "
          "before = compiled_on_disk(); said = []; warm_up(said.append); "

@@ -9,7 +9,7 @@ from analysis.loop.conditioning import MIN_UNIQUE, collinearity
 from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 DT = 1e-3
 

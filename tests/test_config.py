@@ -20,7 +20,7 @@ from rig.errors import ConfigError, RigError
 from rig.paths import data_file
 from rig.units import INCH, POUND_FORCE, POUND_MASS
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 DEFAULT_TEXT = data_file("rig.toml").read_text(encoding="utf-8")
 

@@ -7,7 +7,7 @@ from analysis.identify.cramer_rao import cramer_rao, profile_parameters, with_pa
 from analysis.model.report_constants import report_model
 from rig.profile import load_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 NAMES = ("k1", "k2", "c1", "c2", "alpha", "beta")
 

@@ -25,7 +25,7 @@ import pytest
 from analysis.cli import main
 from analysis.force_driven import datasets as ds
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 ROOT = Path(__file__).resolve().parents[2] / "shared" / "datasets"
 

@@ -17,7 +17,7 @@ from rig.profile import load_profile
 from sim.effects import parse_effect, with_effects
 from sim.generate import PAUSE, campaign_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 GATED = ("k1", "k2", "c2")
 

@@ -34,7 +34,7 @@ from rig.cli_support import guarded
 from rig.errors import DataError
 from rig.units import STANDARD_GRAVITY, to_si
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 INCH = 0.0254
 MASS = float(to_si(6000, "lbm"))

@@ -14,7 +14,7 @@ import pytest
 from analysis.signals.differentiate import METHODS, differentiate, estimate_noise
 from rig.profile import load_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 SIGMA = 2.54e-5
 LIMITS = {"savgol": (2.6e-3, 0.73), "butter": (2.1e-3, 0.65), "spline": (2.8e-3, 1.21),

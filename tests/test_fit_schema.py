@@ -36,7 +36,7 @@ from rig.errors import DataError
 from rig.tui import fit_summary
 from tests.test_analysis_fit_cli import write_csv
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 TESTS = ResidualTests(1.02, 31.5, 0.12, True, 0.0113, {"u_e": 0.01, "u2_e": 0.02, "u2_e2": 0.0},
                       "z near the dead band's edge", "0–2 Hz", {"0–2 Hz": 0.6, "above 50 Hz": 0.4})

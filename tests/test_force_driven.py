@@ -32,7 +32,7 @@ from analysis.force_driven.loading import ForceRecord
 from analysis.force_driven.model import base_terms
 from analysis.force_driven.simulate import simulate_position
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 FS = 1000.0
 DURATION = 30.0

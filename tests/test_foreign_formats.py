@@ -26,7 +26,7 @@ from rig.units import INCH, POUND_MASS
 from rig.wire import can_messages as cm
 from rig.wire.can_messages import Feedback, Heartbeat, MassSample, NodeState, TableSample
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 T0 = 1_700_000_000.0  # Unix s of the log's first frame
 RESOLUTION = 1e-6  # m per count, both sensors (data/rig.toml)

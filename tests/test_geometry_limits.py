@@ -26,7 +26,7 @@ from rig.profile import (
 )
 from rig.units import INCH, POUND_FORCE, POUND_MASS
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 CONFIG = load_config()
 MASS = 13_000 * POUND_MASS  # 7,000 lb platform + 6,000 lb payload

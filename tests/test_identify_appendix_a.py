@@ -8,7 +8,7 @@ import pytest
 from analysis.identify.equation_error import fit_coefficients, solve
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def test_small_case_by_hand() -> None:

@@ -24,7 +24,7 @@ from analysis.identify.pipeline import identify
 from analysis.identify.synthetic import SENSOR_NOISE, synthetic_runs
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 SEEDS = (11, 12, 13, 14)
 Z_MAX = 4.0

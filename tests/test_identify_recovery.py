@@ -23,7 +23,7 @@ from analysis.identify.pipeline import identify
 from analysis.identify.synthetic import synthetic_runs
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 TOLERANCE = {"k1": 1.5e-3, "k2": 1e-2, "c1": 7e-4, "c2": 1.2e-3, "alpha": 3.5e-2,
              "beta": 8e-3, "delta": 7e-4, "epsilon": 9e-3}

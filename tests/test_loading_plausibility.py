@@ -12,7 +12,7 @@ from analysis.identify import loading
 from analysis.identify.synthetic import synthetic_run
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 MASS = report_model("average").mass
 WARNING = "faster than any isolator test"

@@ -25,7 +25,7 @@ from analysis.model.report_constants import report_model
 from sim.effects import parse_effect
 from sim.generate import generate_campaign
 
-pytestmark = [pytest.mark.slow, pytest.mark.shares_cpu]  # tests/machine_share.py
+pytestmark = [pytest.mark.slow, pytest.mark.numeric]  # README's test command
 
 
 def campaign(*effects: str, seed: int = 1, distort=None) -> list[LoopRun]:

@@ -21,7 +21,7 @@ import pytest
 
 from tests.test_unseen_generator import gen
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 NAMES = {"hardening": "cubic_stiffness", "sensor_delay": "sensor_delay",
          "sensor_gain": "sensor_gain", "asym_stiffness": "asymmetric_stiffness",

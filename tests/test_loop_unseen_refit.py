@@ -4,8 +4,8 @@ velocity), valleys the base fit leaves behind, and intervals that stay finite.
 
 The campaigns and the CLI call are `test_loop_unseen`'s (`bench/unseen/generator.py`,
 which shares nothing with the analysis; only A.csv, B.csv and C.csv reach
-`analysis fit`): the file is split from it so that pytest-xdist runs the two side by
-side.
+`analysis fit`): split from it so that pytest-xdist, which hands a file to one
+worker, runs the two side by side.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 from tests.test_loop_unseen import _fit
 from tests.test_unseen_generator import gen
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def test_a_thermal_drift_down_to_a_floor_is_named_with_its_cooling_time_and_limit(tmp_path):

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ is not in
 from bench.unseen.generator import EFFECTS, MASS, make_campaign
 from bench.unseen.peers import EFFECT_NAMES
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def _named(seed: int, effects: list[str]):

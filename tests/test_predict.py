@@ -40,7 +40,7 @@ from sim.cli import main as sim_main
 from sim.effects import parse_effect
 from sim.generate import generate_campaign
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 INCH = 0.0254
 

@@ -8,7 +8,7 @@ import pytest
 from rig.errors import ConfigError
 from rig.profile import load_profile, parse_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 INCH = 0.0254
 

@@ -23,7 +23,7 @@ from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 DT = 1e-3
 STEP = 0.1397  # m, the report's 5.5 in

@@ -18,7 +18,7 @@ from analysis.model.report_constants import (
 from rig.paths import data_file
 from rig.units import from_si, to_si
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def test_table1_round_trip_us_si_us():

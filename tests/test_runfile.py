@@ -30,7 +30,7 @@ from rig.runfile import (
 )
 from rig.runfile.superblock import lookup3, status_flags
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 PROFILE_TOML = 'name = "A"\n[[segment]]\nhold = 1.0\n'
 INFO = RunInfo(

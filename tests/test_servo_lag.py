@@ -19,7 +19,7 @@ from analysis.identify.step_pulse import lag_response, params_ramps, step_pulse_
 from analysis.identify.table_motion import estimate_table_motion, table_noise
 from rig.profile import load_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 SIGMA = 2.54e-5  # m, 0.001 in: the rig's sensors
 INCH = 0.0254

@@ -12,7 +12,7 @@ from rig.errors import ConfigError
 from sim.effects import EFFECTS, Effect, parse_effect, with_effects
 from sim.generate import SENSOR_NOISE, generate_campaign, write_run_csv
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 LOOP_NAMES = {"coulomb_friction", "asymmetric_damping", "quadratic_damping", "cubic_stiffness",
               "asymmetric_stiffness", "preload", "force_offset", "thermal_damping_drift",

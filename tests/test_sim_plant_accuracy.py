@@ -22,7 +22,7 @@ from rig.profile import load_profile
 from sim.devices import interpolate_setpoints
 from sim.plant import Plant
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 RATE = 400.0  # Hz, the setpoints (data/rig.toml)
 START = 0.3037  # s: START arrives between grid points, as it does on the rig

@@ -17,7 +17,7 @@ from analysis.model.isolator import IsolatorModel, Term
 from analysis.simulate import simulate
 from rig.profile import Profile, Segment
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def exact_linear_response(m: float, k: float, c: float, motion: PPoly, t: np.ndarray):

@@ -10,7 +10,7 @@ import pytest
 from analysis.simulate import simulate
 from rig.profile import PEAK_ACCELERATION_FACTOR, Profile, Segment
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def gentle_ramp(peak_force: float, mass: float) -> Profile:

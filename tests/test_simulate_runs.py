@@ -9,7 +9,7 @@ from analysis.model.report_constants import report_model
 from analysis.simulate import RunSetup, motion_from_samples, simulate, simulate_runs
 from rig.profile import load_profile
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 def test_runs_of_different_motions_lengths_and_starts_match_one_by_one():

@@ -12,7 +12,7 @@ from analysis.identify.synthetic import synthetic_runs
 from analysis.identify.table_motion import estimate_table_motion
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 @pytest.mark.parametrize("seed, run", [(1050, 0), (1052, 1), (1058, 1)])

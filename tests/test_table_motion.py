@@ -9,7 +9,7 @@ from scipy import signal
 from analysis.identify.table_motion import estimate_table_motion
 from sim.generate import SENSOR_NOISE, generate_campaign
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 @pytest.fixture(scope="module")

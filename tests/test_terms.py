@@ -14,7 +14,7 @@ from analysis.model.terms import BOUC_WEN, KINDS, basis, kind
 from analysis.simulate import simulate, simulate_batch
 from rig.profile import Profile, Segment
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 # the formulas as the report writes them, independent of the kernel
 EXPECTED = {

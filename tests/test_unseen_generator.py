@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ is not in
 from bench.unseen import generator as gen
 from bench.unseen.motion import HOLD, RAMPS, REST
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 UNSEEN = Path(__file__).resolve().parents[1] / "bench" / "unseen"
 MODULES = ("generator", "motion", "effects", "plant", "integrate")

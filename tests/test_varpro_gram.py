@@ -9,7 +9,7 @@ from analysis.identify.synthetic import synthetic_runs
 from analysis.identify.varpro import Gram, _cost
 from analysis.model.report_constants import report_model
 
-pytestmark = pytest.mark.shares_cpu  # times nothing: beside others (tests/machine_share.py)
+pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
 @pytest.fixture(scope="module")
