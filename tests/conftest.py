@@ -22,6 +22,24 @@ from sim.rig_sim import SimRig
 one_blas_thread()
 
 
+# The files that run for minutes (`analysis fit` through the CLI, many campaigns over),
+# longest first. pytest-xdist hands each worker a file at a time (README), by default
+# the files with the most tests first: these few-test files then started last, and one
+# worker fitted on alone for minutes after the other had run out of files.
+LONGEST_FIRST = ("test_loop_unseen.py", "test_loop_unseen_refit.py", "test_loop.py",
+                 "test_compiled_note.py", "test_naming.py", "test_predict.py")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.pluginmanager.hasplugin("xdist"):
+        config.option.loadscopereorder = False  # the order below, not by count of tests
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: else as found
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """The integrator compiled (or loaded from numba's cache) once, before any test: on a
     cold cache each process a test starts (the simulated rig, the CLI) would compile it

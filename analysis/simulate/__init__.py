@@ -82,10 +82,15 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
     nt = len(model.terms)
     z, zd, xdd = np.empty(n), np.empty(n), np.empty(n)
     f, s, st = np.empty((nt + 1, n)), np.empty((nt, n)), np.empty(n)
-    breaks, coefs = np.ascontiguousarray(motion.x, float), np.ascontiguousarray(motion.c, float)
+    breaks = np.ascontiguousarray(motion.x, float)
+    # the coefficients as a strided view, the array type simulate_jobs hands over (numba's
+    # layout "A"): the two share one compiled simulate_one, where a contiguous array here
+    # was a second compile in full, 70 s on a 2-core machine's first `sim` command
+    padded = np.zeros((motion.c.shape[0], motion.c.shape[1] + 1))
+    padded[:, :-1] = motion.c
+    coefs = padded[:, :-1]
     simulate_one(kinds, gated, model.vector(), breaks, coefs, start, dt, n, substeps,
-                 z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, True,
-                 *workspace(nt))
+                 z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, *workspace(nt))
     t = start + dt * np.arange(n)
     u, ud, udd = _table(motion, t)
     forces = {term.name: f[j] for j, term in enumerate(model.terms)}
@@ -103,7 +108,9 @@ def _initial_states(s0: ArrayLike | None, rows: int, nt: int) -> np.ndarray:
     S = np.atleast_2d(np.asarray(s0, float))
     if S.shape[1] != nt or S.shape[0] not in (1, rows):
         raise ValueError(f"initial states have shape {S.shape}, need ({rows}, {nt}) or ({nt},)")
-    return np.ascontiguousarray(np.broadcast_to(S, (rows, nt)))
+    # a copy: broadcast_to's view is read-only, and a read-only array is another numba
+    # type, so another full compile of the integrator (`sim serve` hands its states)
+    return np.broadcast_to(S, (rows, nt)).copy()
 
 
 def _table(motion: PPoly, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -255,15 +255,18 @@ def workspace(n_terms):
 # allocates nothing (its caller hands it a `workspace`): no reference counting, as rk4_step
 @njit(cache=True, **NO_REFCOUNT)
 def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd0, s0,
-                 out_z, out_zd, out_xdd, out_f, out_s, out_stuck, record, work, scratch,
-                 events):
+                 out_z, out_zd, out_xdd, out_f, out_s, out_stuck, work, scratch, events):
     """Integrate one parameter set; write n_out samples spaced dt from t0.
 
     out_f (J+1, n_out): each term's force and, last, the static-friction force;
     out_s (J, n_out): internal states; out_stuck (n_out,): 1 while stuck.
-    These three are written only when `record` is true. work, scratch, events: a
-    `workspace(J)`.
+    These three are written only when out_stuck has room for the samples (a batch
+    hands empty ones). work, scratch, events: a `workspace(J)`.
     """
+    # whether to record follows from the arrays, not from a flag: a literal False from
+    # simulate_jobs and a bool from Python are two numba signatures, each compiled in full
+    # (70-100 s cold on a 2-core machine), where the batch and the recorded run share one
+    record = out_stuck.shape[0] >= n_out
     nt = kinds.shape[0]
     n = 2 + nt
     y, y1, ytry = work[0], work[1], work[2]
@@ -482,17 +485,28 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
         out_zd[k] = 0.0 if stuck else y[1]
         out_xdd[k] = xdd
         if record:
-            ftot = term_forces(kinds, gated, p, y[0], out_zd[k], sz, 0.0 if stuck else szd,
-                               outside, y, scratch)
-            for j in range(nt):
-                out_f[j, k] = scratch[j]
-                out_s[j, k] = y[2 + j]
-            if stuck:
-                ua = base_motion(breaks, coefs, t)[2]
-                out_f[nt, k] = -(p[P_MASS] * ua + ftot)
-            else:
-                out_f[nt, k] = 0.0
-            out_stuck[k] = 1.0 if stuck else 0.0
+            record_sample(kinds, gated, p, breaks, coefs, t, y, k, out_zd[k], stuck, outside,
+                          sz, szd, out_f, out_s, out_stuck, scratch)
+
+
+# a call, not inlined: inlined behind a flag known only at run time, this made every
+# simulation of a batch (which records nothing) 5-8 % slower
+@njit(cache=True, **NO_REFCOUNT)
+def record_sample(kinds, gated, p, breaks, coefs, t, y, k, zd, stuck, outside, sz, szd,
+                  out_f, out_s, out_stuck, scratch):
+    """Column k of out_f (each term's force, then static friction's), out_s and out_stuck."""
+    nt = kinds.shape[0]
+    ftot = term_forces(kinds, gated, p, y[0], zd, sz, 0.0 if stuck else szd, outside, y,
+                       scratch)
+    for j in range(nt):
+        out_f[j, k] = scratch[j]
+        out_s[j, k] = y[2 + j]
+    if stuck:
+        ua = base_motion(breaks, coefs, t)[2]
+        out_f[nt, k] = -(p[P_MASS] * ua + ftot)
+    else:
+        out_f[nt, k] = 0.0
+    out_stuck[k] = 1.0 if stuck else 0.0
 
 
 @njit(cache=True, parallel=True)
@@ -514,6 +528,9 @@ def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_o
         s = np.empty((nt, 0))
         st = np.empty(0)
         work, scratch, events = workspace(nt)
+        # a strided view (numba's layout "A"), which `simulate` hands over too: another
+        # layout would be another full compile of simulate_one, and a contiguous copy per
+        # row made every simulation 8 % slower (a fresh mapping of its pages each time)
         simulate_one(kinds, gated, P[r], breaks[m, :nb], coefs[m, :, :nb - 1], t0[m], dt[m],
                      n_out[m], substeps, z0[m], zd0[m], S0[r], out_z[r], out_zd[r],
-                     out_xdd[r], f, s, st, False, work, scratch, events)
+                     out_xdd[r], f, s, st, work, scratch, events)
