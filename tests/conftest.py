@@ -35,17 +35,9 @@ def pytest_configure(config: pytest.Config) -> None:
         config.option.loadscopereorder = False  # the order below, not by count of tests
 
 
-# The browser test last of those against the clock: of the runs a real-time test saw
-# aborted on "actuator 1 feedback silent for 0.31-0.65 s" (the simulated rig's feedback
-# late, its table sensor on time), two in CI and one locally, two came in the test
-# right after it. What chromium leaves behind that stalls the next run was not found.
-LAST = ("test_report_browser.py",)
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-    # stable: every other file as found
-    items.sort(key=lambda item: (item.path.name in LAST, rank.get(item.path.name, len(rank))))
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: else as found
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
