@@ -203,25 +203,16 @@ class SimRig:
         while not self._stop.is_set():
             now = time.monotonic()
             self.plant.advance_to(now + self.plant.chunk * dt)  # one chunk ahead
-            due: list[tuple[float, list[can.Message]]] = []
+            out: list[can.Message] = []
             while start + k_sensor * sensor_dt <= now:
-                t = start + k_sensor * sensor_dt
-                due.append((t, [self._table_frame(t, k_sensor)]))
+                out.append(self._table_frame(start + k_sensor * sensor_dt, k_sensor))
                 k_sensor += 1
             while start + k_feedback * feedback_dt <= now:
-                t = start + k_feedback * feedback_dt
-                due.append((t, self._feedback(t)))
+                out += self._feedback(start + k_feedback * feedback_dt)
                 k_feedback += 1
             while start + k_beat * beat_dt <= now:
-                due.append((start + k_beat * beat_dt, self._heartbeats(k_beat)))
+                out += self._heartbeats(k_beat)
                 k_beat += 1
-            # in time order, as devices that each send on their own put them on the bus:
-            # after a pause of this loop (the host busy for 0.2 s) the batch made up for it
-            # held every table frame before any feedback, and the bus took long enough to
-            # stamp the table frames that the rig saw the actuators silent for 0.34-0.36 s
-            # (a SIGSTOP of `sim serve` for 0.21 s; "actuator 1 feedback silent" in CI)
-            due.sort(key=lambda d: d[0])  # stable: at one instant, table, feedback, beats
-            out = [m for _, msgs in due for m in msgs]
             if out:  # the actuators do not hear each other, so no origin is needed
                 self.server.broadcast_many(out)
             # wake every LOOP_S, not every sample: each wake-up costs ~50 µs of a shared
