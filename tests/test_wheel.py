@@ -43,12 +43,10 @@ def test_the_wheel_holds_every_module_and_the_data(tmp_path: Path) -> None:
     wheel = next(tmp_path.glob("isolator_rig-*.whl"))
     with zipfile.ZipFile(wheel) as z:
         held = set(z.namelist())
+        # the console scripts README's commands call
+        scripts = z.read(next(n for n in held if n.endswith("entry_points.txt"))).decode()
     missing = sorted(checkout_files() - held)
     assert not missing, f"left out of the wheel: {missing[:10]}"
     assert "rig/_data/table1.toml" in held and "rig/_data/profiles/A.toml" in held
-    # the console scripts README's commands call
-    entry = next(n for n in held if n.endswith("entry_points.txt"))
-    with zipfile.ZipFile(wheel) as z:
-        scripts = z.read(entry).decode()
     for script in ("rig = rig.cli:main", "analysis = analysis.cli:main", "sim = sim.cli:main"):
         assert script in scripts
