@@ -5,7 +5,7 @@ from __future__ import annotations
 import struct
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from rig.wire.serial_frame import (
@@ -158,6 +158,13 @@ def _hostile_streams(draw: st.DrawFn) -> tuple[bytes, list[Frame], list[bool], l
 
 @settings(max_examples=200, deadline=None)
 @given(_hostile_streams())
+# a sync pattern of garbage before a truncated frame: the window from it to the next
+# intact frame's first bytes passed CRC with another format version, counted and not
+# returned, and that frame was lost with it
+@example((bytes.fromhex("a55a0000000000000000000000 01d894 a55a a55a010004340d00389530feef"
+                        "a55a020000000000000000000001 3292".replace(" ", "")),
+          [Frame(0, 0, 0, 0), Frame(1, 865284, -30370504, 239), Frame(2, 0, 0, 0)],
+          [True, False, True], []))
 def test_false_frames_are_rare_and_each_costs_at_most_one_intact_frame(
     case: tuple[bytes, list[Frame], list[bool], list[int]],
 ) -> None:
@@ -167,9 +174,12 @@ def test_false_frames_are_rare_and_each_costs_at_most_one_intact_frame(
 
     expected = [f for f, ok in zip(frames, intact) if ok]
     genuine = [f for f in got if f in expected]
-    false_frames = len(got) - len(genuine)
     assert genuine == [f for f in expected if f in genuine]  # in order, no repeats
-    # a false accept is a 16-byte window that passed CRC; it can swallow at most
-    # the one intact frame it overlaps, and needs a 2**-16 CRC match to happen
-    assert len(expected) - len(genuine) <= false_frames <= 1
+    # a false accept is a 16-byte window that passed CRC, returned or not: the streams
+    # here hold no frame of another version and no repeated sequence number, so every
+    # one counted as such is false too. It can swallow at most the one intact frame it
+    # overlaps, and needs a 2**-16 CRC match to happen
+    s = decoder.stats
+    false_accepts = len(got) - len(genuine) + s.bad_version + s.duplicates
+    assert len(expected) - len(genuine) <= false_accepts <= 1
     _assert_bytes_accounted(decoder)
