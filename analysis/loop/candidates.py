@@ -112,6 +112,14 @@ class Candidate:
             big = max(big, 2.0 * abs(model.parameters().get("c1", 6.0e3)) / shape[2])
         return (0.0 if self.sign > 0 else -big, 0.0 if self.sign < 0 else big)
 
+    def size_at(self, value: float, shape: tuple[float, ...]) -> float:
+        """Its size `value` at this shape carried to `shape` with the same force: a
+        hysteresis's stiffness scales with 1 / its yield displacement (`typical`); every
+        other effect's size is a force, or a coefficient the shape does not scale."""
+        if self.name == "hysteresis":
+            return value * yield_stiffness(tuple(shape)) / yield_stiffness(self.shape)
+        return value
+
     def shaped(self, shape: tuple[float, ...]) -> Candidate:
         """This effect with another shape (one of `shapes`, or a refitted one)."""
         return replace(self, shape=tuple(shape))

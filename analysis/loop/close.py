@@ -60,7 +60,7 @@ from analysis.loop.evidence import Diagnosis, diagnose_fit
 from analysis.loop.judge import held_look_alikes, judge, own_parameters
 from analysis.loop.naming import BIC_MARGIN, Naming, name_effects
 from analysis.loop.pair import pair_step
-from analysis.loop.polish import polished, step_candidates
+from analysis.loop.polish import polished, restarted, step_candidates
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
 from analysis.loop.result import LoopResult, Step
 from analysis.loop.runs import LoopRun, run_errors
@@ -116,6 +116,8 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
             fit, free = base, list(base.names)
     if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # the solver's misfit, or the model's?
         fit = polished(fit, data, step_candidates(fit, steps), progress)
+    if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # or a valley next to it?
+        fit = restarted(fit, runs, step_candidates(fit, steps), progress)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
     steps = [replace(s, **dict(zip(("value", "std"), fit.param(s.parameter))))
