@@ -112,8 +112,9 @@ def _other_shapes(h: Hypothesis, candidates: dict[str, Candidate]):
             other = c.shaped(shape)
             start = h.with_values({**dict(zip(term.shape_names(), shape)),
                                    param: c.size_at(term.coef, shape)})
-            if tuple(shape) != tuple(term.shape) and other.shape_parameters(start.model):
-                yield start, other.shape_parameters(start.model), {param: other}
+            freed = other.shape_parameters(start.model)
+            if tuple(shape) != tuple(term.shape) and freed:
+                yield start, freed, {param: other}
 
 
 def _alpha_moved(h: Hypothesis):
