@@ -22,7 +22,8 @@ Its `effects_added` is scored against the generator's truth:
 
 Also the residual after over the noise where the effect is one of the library's,
 how often "unexplained structure" is said, and the wall time per campaign (p50, p90);
-then the same per generator effect (`per_effect`) and where the time goes (`wall_summary`).
+then the same per generator effect (`per_effect`), where the time goes (`wall_summary`),
+and which stage of the fit it goes to (`stage_table`, from the fit's progress lines).
 The peers of `bench/unseen/peers.py` (a stepwise equation-error fit with BIC, and
 PySINDy with a dead-band-gated library) are run on the same campaigns as the baseline.
 
@@ -35,9 +36,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -58,6 +61,24 @@ PAIRS = (("coulomb", "hardening"), ("orifice", "force_offset"), ("sensor_delay",
          ("asym_stiffness", "thermal"), ("bouc_wen", "sensor_gain"), ("asym_damping", "coulomb"))
 TIMEOUT = 600.0  # s per campaign: past it the campaign counts as missed
 
+# the fit's progress lines (stderr) -> the stage that starts there; an indented line
+# that no pattern claims continues the stage before it ("  held …", "  F_break: …")
+PROGRESS = re.compile(r"^analysis fit \[\s*[\d.]+ s\] (.*)$")
+STAGES = (
+    (r"(differentiating|appendix A|variable projection)", "identification: equation error"),
+    (r"output error: all runs|output error: the table channel", "identification: joint fit"),
+    (r"  residual .* again from alpha", "identification: other alpha starts"),
+    (r"  residual .* again from run", "identification: a run's own start"),
+    (r"run \w+: ", "identification: each run alone"),
+    (r"loop: (refitting the base model|the model without)", "loop: base refit"),
+    (r"loop: (equation error|residual .* trying equation)", "loop: naming"),
+    (r"loop: refitting with", "loop: candidate refit"),
+    (r"loop: (validating|is .* still needed)", "loop: validation"),
+    (r"loop: the final fit stopped", "loop: final fit carried on"),
+    (r"figures", "report"),
+)
+START_UP = "start-up, reading the files"
+
 
 def campaigns(quick: bool, seeds: int) -> list[tuple[int, tuple[str, ...]]]:
     """(seed, effects) of every campaign; seeds differ per effect so plants differ too."""
@@ -76,28 +97,63 @@ def truth_names(effects: tuple[str, ...]) -> list[str]:
     return [n for e in effects if (n := EFFECT_NAMES[e])]
 
 
+def stage_of(message: str) -> str | None:
+    """The stage a progress message starts, or None where it continues the last one."""
+    for pattern, stage in STAGES:
+        if re.match(pattern, message):
+            return stage
+    return None
+
+
+def stage_seconds(lines: list[tuple[float, str]], wall: float) -> dict[str, float]:
+    """Seconds per stage from (time since start, progress message) pairs: each stage
+    lasts until the next one starts, the last until the process ends."""
+    out: dict[str, float] = {}
+    stage, since = START_UP, 0.0
+    for t, message in lines:
+        new = stage_of(message)
+        if new is None or new == stage:
+            continue
+        out[stage] = out.get(stage, 0.0) + t - since
+        stage, since = new, t
+    out[stage] = out.get(stage, 0.0) + wall - since
+    return out
+
+
 def run_product(seed: int, effects: tuple[str, ...], work: Path) -> dict:
-    """`analysis fit` on one campaign's CSV files: named effects, residuals, wall time."""
+    """`analysis fit` on one campaign's CSV files: named effects, residuals, wall time,
+    and the seconds each stage of the fit took (its progress lines, timed as they come)."""
     c = make_campaign(seed, effects)
     d = work / f"{seed}-{'+'.join(effects) or 'clean'}"
     write_campaign(c, d)
     files = [str(d / f"{r}.csv") for r in "ABC"]
     t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(["analysis", "fit", *files, "--mass", str(MASS),
-                               "--json", str(d / "out.json")], check=False, capture_output=True,
-                              text=True, timeout=TIMEOUT,
-                              env={**os.environ, "OMP_NUM_THREADS": "1"})
-        wall = time.perf_counter() - t0
-    except subprocess.TimeoutExpired:
+    lines: list[tuple[float, str]] = []
+    tail: list[str] = []
+    with (d / "fit.txt").open("w") as stdout:
+        proc = subprocess.Popen(["analysis", "fit", *files, "--mass", str(MASS),
+                                 "--json", str(d / "out.json")], stdout=stdout,
+                                stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "OMP_NUM_THREADS": "1"})
+        timer = threading.Timer(TIMEOUT, proc.kill)
+        timer.start()
+        for line in proc.stderr:
+            if m := PROGRESS.match(line.rstrip("\n")):
+                lines.append((time.perf_counter() - t0, m.group(1)))
+            tail = (tail + [line.strip()])[-1:]
+        proc.wait()
+        timer.cancel()
+    wall = time.perf_counter() - t0
+    if wall >= TIMEOUT:
         return {"named": [], "wall": TIMEOUT, "error": "timeout"}
     if proc.returncode != 0:
-        return {"named": [], "wall": wall, "error": proc.stderr.strip().splitlines()[-1:]}
+        return {"named": [], "wall": wall, "error": tail}
     out = json.loads((d / "out.json").read_text())
     return {"named": list(out.get("effects_added", [])), "wall": wall,
             "residual_after": out.get("residual_after", {}).get("residual_over_noise"),
             "residual_before": out.get("residual_before", {}).get("residual_over_noise"),
-            "unexplained": bool(out.get("unexplained", {}).get("value", False))}
+            "unexplained": bool(out.get("unexplained", {}).get("value", False)),
+            "stages": stage_seconds(lines, wall)}
 
 
 def run_peer(name: str, seed: int, effects: tuple[str, ...]) -> dict:
@@ -198,6 +254,25 @@ def wall_summary(s: dict) -> str:
     return "; ".join(p for p in parts if p)
 
 
+def stage_table(rows: list[dict]) -> str:
+    """Seconds per stage over every campaign, its share of all, and its p50 over the
+    campaigns that ran it."""
+    per: dict[str, list[float]] = {}
+    for r in rows:
+        for stage, sec in r.get("stages", {}).items():
+            per.setdefault(stage, []).append(sec)
+    total = sum(sum(v) for v in per.values())
+    if not total:
+        return ""
+    lines = ["| stage | campaigns | s in all | share | p50 where run |", "|---|---|---|---|---|"]
+    order = [START_UP, *dict.fromkeys(stage for _, stage in STAGES)]
+    for stage in sorted(per, key=order.index):
+        v = per[stage]
+        lines.append(f"| {stage} | {len(v)} | {sum(v):.0f} | {100 * sum(v) / total:.0f} % | "
+                     f"{np.median(v):.1f} s |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed of every effect and clean")
@@ -236,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(per_effect(rows["analysis fit"]))
     print(wall_summary(results["analysis fit"]))
+    print()
+    print(stage_table(rows["analysis fit"]))
     if a.out:
         a.out.write_text(json.dumps({"scores": results, "rows": rows}, indent=1) + "\n")
     return 0
