@@ -129,7 +129,7 @@ def run_product(seed: int, effects: tuple[str, ...], work: Path) -> dict:
     files = [str(d / f"{r}.csv") for r in "ABC"]
     t0 = time.perf_counter()
     lines: list[tuple[float, str]] = []
-    tail: list[str] = []
+    last = ""  # the last line said: the error, where the fit fails
     with (d / "fit.txt").open("w") as stdout:
         proc = subprocess.Popen(["analysis", "fit", *files, "--mass", str(MASS),
                                  "--json", str(d / "out.json")], stdout=stdout,
@@ -140,14 +140,14 @@ def run_product(seed: int, effects: tuple[str, ...], work: Path) -> dict:
         for line in proc.stderr:
             if m := PROGRESS.match(line.rstrip("\n")):
                 lines.append((time.perf_counter() - t0, m.group(1)))
-            tail = (tail + [line.strip()])[-1:]
+            last = line.strip() or last
         proc.wait()
         timer.cancel()
     wall = time.perf_counter() - t0
     if wall >= TIMEOUT:
         return {"named": [], "wall": TIMEOUT, "error": "timeout"}
     if proc.returncode != 0:
-        return {"named": [], "wall": wall, "error": tail}
+        return {"named": [], "wall": wall, "error": [last]}
     out = json.loads((d / "out.json").read_text())
     return {"named": list(out.get("effects_added", [])), "wall": wall,
             "residual_after": out.get("residual_after", {}).get("residual_over_noise"),

@@ -104,19 +104,19 @@ def identify(runs: Sequence[MeasuredRun], refine_output_error: bool = True,
     progress("variable projection over alpha, beta, delta")
     proj = project(model0, data, free=LINEAR)
     model, estimate, joint, held, skew = proj.model, "variable projection", None, (), None
-    smooth = joint_prepared = None
     runs_fit: dict[str, OutputErrorFit] = {}
+    measured = prepared  # as read; `_joint` hands back the runs as its fit drives them
     if refine_output_error:
         progress("output error: all runs")
         skew_limit = min(r.skew_limit for r in runs)
-        oe_runs = [p.oe for p in prepared]
+        oe_runs = [p.oe for p in measured]
         smooth, smooth_held, start = _joint_smooth(proj, model0, data, oe_runs, progress)
-        joint, joint_prepared, skew = _joint(smooth, smooth_held, start, prepared, skew_limit,
-                                             progress)
+        joint, prepared, skew = _joint(smooth, smooth_held, start, measured, skew_limit,
+                                       progress)
         model, estimate = joint.model, "joint output error"
-    errors = {p.run.name: run_error(model, p) for p in (joint_prepared if joint else prepared)}
+    errors = {p.run.name: run_error(model, p) for p in prepared}
     if per_run and refine_output_error and len(prepared) > 1:
-        runs_fit = _per_run(joint, joint_prepared, model0, errors, progress)
+        runs_fit = _per_run(joint, prepared, model0, errors, progress)
         # a run fitted to its noise alone from its own start, where the joint fit is not
         # at the noise, found the valley the joint fit's starts missed (clean unseen seed
         # 3: joint 1.91 x noise at alpha 356 1/m, run A alone 0.99 at 59, the joint fit
@@ -128,14 +128,13 @@ def identify(runs: Sequence[MeasuredRun], refine_output_error: bool = True,
             again, again_held = _smooth_fit(start_run, oe_runs)
             if not again.residual_rms < RESTART_GAIN * smooth.residual_rms:
                 continue
-            joint, joint_prepared, skew = _joint(again, again_held, start_run, prepared,
-                                                 skew_limit, progress)
+            joint, prepared, skew = _joint(again, again_held, start_run, measured,
+                                           skew_limit, progress)
             model = joint.model
-            errors = {p.run.name: run_error(model, p) for p in joint_prepared}
-            runs_fit = _per_run(joint, joint_prepared, model0, errors, progress)
+            errors = {p.run.name: run_error(model, p) for p in prepared}
+            runs_fit = _per_run(joint, prepared, model0, errors, progress)
             break
     if joint is not None:
-        prepared = joint_prepared
         held = tuple(n for n in REFINED if n not in joint.names)
     return IsolatorFit(model=model, estimate=estimate, appendix_a=appendix_a, projection=proj,
                        joint=joint, held=held, per_run=runs_fit, errors=errors,
