@@ -50,7 +50,9 @@ HYSTERETIC_FORCE = 100.0  # N at the yield: as large as the report's breakaway f
 # chatter across a slope c/v_s that steep
 FRICTION_SHAPES = ((0.0,), (2e-3,), (6e-3,))  # m/s
 FRICTION_BUILD_UP_MIN = 1e-3  # m/s
-SHAPE_FLOORS = {("coulomb", "v_s"): FRICTION_BUILD_UP_MIN}  # (term kind, shape): least value
+# (term kind, shape): least value. Bouc–Wen's exponent: below 1, |r|^(n−1) makes the
+# loop's slope at each reversal (r = 0) infinite
+SHAPE_FLOORS = {("coulomb", "v_s"): FRICTION_BUILD_UP_MIN, ("bouc_wen", "n"): 1.0}
 
 
 def yield_stiffness(shape: tuple[float, ...]) -> float:

@@ -24,6 +24,11 @@ points near it (`restarted`), for two valleys the loop's steps do not search:
   friction built up over 9.9 mm/s (seed 102), named as the step, ended at 1.57 x the
   noise; from the final fit with the build-up freed at 2, 4, 6 or 10 mm/s, at 0.995,
   v_s 9.6 mm/s;
+- a hysteresis's exponent n, which the library holds at 1 or 2 (freed while naming, n
+  walked to Eq 10's own tanh spring, `candidates`); a seal's may lie between: an
+  unseen Bouc–Wen loop of exponent 1.57 (seed 802) ended at 8.30 x the noise with n
+  held at 1, at 7.72 with it freed (n 1.52): lower, though not at the noise
+  (`_exponent_freed`);
 - α: the base fit's softening spring, which the effect's refit carried along (seed
   505, an unseen one-sided damping: 1.67 x the noise at α 70 1/m; refitted from a
   quarter of that, 1.009; the generator's α is 91).
@@ -43,6 +48,7 @@ from analysis.loop.runs import LoopRun, diverging_runs
 FINER_STEPS = (1e-3, 3e-4, 1e-4)  # of each scaled constant, after the refit's 3e-3
 AGAIN = 3  # fresh trust regions per step size, from where the last one stopped
 GAIN = 0.995  # a refit is kept, and another tried, if it cut the residual by 0.5 %
+EXPONENT_STARTS = (None, 1.5)  # Bouc–Wen n: the fit's own, and between the library's 1 and 2
 ALPHA_MOVES = (0.25, 4.0)  # α of the final fit times these: the restarts' other springs
 
 
@@ -82,10 +88,11 @@ def restarted(fit: Fit, runs: Sequence[LoopRun], candidates: dict[str, Candidate
               progress: Callable[[str], None] = lambda m: None) -> Fit:
     """The lowest of `fit` and refits of its free constants from starts near it: each
     added effect held at the library's own shape started at the library's other shapes
-    with its shape constants freed, and α moved (`ALPHA_MOVES`) where the fit frees it;
-    the first at the noise ends the search. A refit whose lone prediction of a run runs
-    away is not kept."""
-    starts = [*_other_shapes(fit.hypothesis, candidates), *_alpha_moved(fit)]
+    with its shape constants freed, a hysteresis with its exponent freed too, and α
+    moved (`ALPHA_MOVES`) where the fit frees it; the first at the noise ends the search.
+    A refit whose lone prediction of a run runs away is not kept."""
+    starts = [*_other_shapes(fit.hypothesis, candidates),
+              *_exponent_freed(fit.hypothesis, candidates), *_alpha_moved(fit)]
     if not starts:
         return fit
     progress(f"loop: the final fit stopped at {fit.residual_over_noise:.2f} x noise: "
@@ -116,6 +123,27 @@ def _other_shapes(h: Hypothesis, candidates: dict[str, Candidate]):
             freed = other.shape_parameters(start.model)
             if tuple(shape) != tuple(term.shape) and freed:
                 yield start, freed, {param: other}
+
+
+def _exponent_freed(h: Hypothesis, candidates: dict[str, Candidate]):
+    """(start, shape constants to free, the candidate at its shape) for each hysteresis,
+    its exponent n freed with a and b: from the fit's n and from each other of
+    EXPONENT_STARTS, at the same yield displacement (a + b)^(−1/n), so at the same force
+    there (the coefficient is the force per metre at the yield)."""
+    for param, c in candidates.items():
+        if c.term_kind != "bouc_wen" or param not in h.model.parameters():
+            continue
+        term = h.model.term(param)
+        a, b, n = term.shape
+        y = (a + b) ** (-1.0 / n)  # the yield displacement, m
+        for start in EXPONENT_STARTS:
+            if start == n:
+                continue
+            n1 = n if start is None else start
+            scale = y ** (n - n1)  # (a + b) y^n = 1 at either exponent
+            shape = (a * scale, b * scale, n1)
+            yield (h.with_values(dict(zip(term.shape_names(), shape))),
+                   list(term.shape_names()), {param: c.shaped(shape)})
 
 
 def _alpha_moved(fit: Fit):
