@@ -40,7 +40,7 @@ from collections.abc import Callable, Sequence
 
 from analysis.identify.run_data import RunData
 from analysis.loop.candidate_fit import NOISE_LEVEL
-from analysis.loop.candidates import CANDIDATES, Candidate
+from analysis.loop.candidates import CANDIDATES, Candidate, yield_stiffness
 from analysis.loop.refit import Fit, Hypothesis, refit_free
 from analysis.loop.result import Step
 from analysis.loop.runs import LoopRun, diverging_runs
@@ -48,7 +48,7 @@ from analysis.loop.runs import LoopRun, diverging_runs
 FINER_STEPS = (1e-3, 3e-4, 1e-4)  # of each scaled constant, after the refit's 3e-3
 AGAIN = 3  # fresh trust regions per step size, from where the last one stopped
 GAIN = 0.995  # a refit is kept, and another tried, if it cut the residual by 0.5 %
-EXPONENT_STARTS = (None, 1.5)  # Bouc–Wen n: the fit's own, and between the library's 1 and 2
+EXPONENT_BETWEEN = 1.5  # Bouc–Wen n started here too: between the library's 1 and 2
 ALPHA_MOVES = (0.25, 4.0)  # α of the final fit times these: the restarts' other springs
 
 
@@ -127,19 +127,16 @@ def _other_shapes(h: Hypothesis, candidates: dict[str, Candidate]):
 
 def _exponent_freed(h: Hypothesis, candidates: dict[str, Candidate]):
     """(start, shape constants to free, the candidate at its shape) for each hysteresis,
-    its exponent n freed with a and b: from the fit's n and from each other of
-    EXPONENT_STARTS, at the same yield displacement (a + b)^(−1/n), so at the same force
-    there (the coefficient is the force per metre at the yield)."""
+    its exponent n freed with a and b: from the fit's n and from EXPONENT_BETWEEN, at
+    the same yield displacement (a + b)^(−1/n), so at the same force there (the
+    coefficient is the force per metre at the yield)."""
     for param, c in candidates.items():
         if c.term_kind != "bouc_wen" or param not in h.model.parameters():
             continue
         term = h.model.term(param)
         a, b, n = term.shape
-        y = (a + b) ** (-1.0 / n)  # the yield displacement, m
-        for start in EXPONENT_STARTS:
-            if start == n:
-                continue
-            n1 = n if start is None else start
+        y = 1.0 / yield_stiffness(term.shape)  # the yield displacement, m
+        for n1 in dict.fromkeys((n, EXPONENT_BETWEEN)):
             scale = y ** (n - n1)  # (a + b) y^n = 1 at either exponent
             shape = (a * scale, b * scale, n1)
             yield (h.with_values(dict(zip(term.shape_names(), shape))),
