@@ -13,9 +13,8 @@ from analysis.identify.foreign import parse_channels
 from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import identify
 from analysis.identify.report_format import format_fit
-from analysis.loop import close_loop
+from analysis.loop import close_identified
 from analysis.loop.report import fit_document, format_loop
-from analysis.loop.runs import loop_runs
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import LENGTH_UNIT, add_units_argument
 from rig.errors import DataError
@@ -69,7 +68,7 @@ def run_fit(args: argparse.Namespace) -> int:
     print(format_fit(fit))
     loop = None
     if not (args.no_loop or args.no_refine):
-        loop = close_loop(fit.model, loop_runs(fit), progress=progress)
+        loop = close_identified(fit, progress)
         print()
         print(format_loop(loop, "us"))
     if args.json:

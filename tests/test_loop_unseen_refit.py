@@ -18,23 +18,33 @@ from tests.test_unseen_generator import gen
 pytestmark = pytest.mark.numeric  # times nothing: side by side on the cores (README)
 
 
-def test_a_thermal_drift_down_to_a_floor_is_named_with_its_cooling_time_and_limit(tmp_path):
+@pytest.mark.parametrize("seed", [705, 704])
+def test_a_thermal_drift_down_to_a_floor_is_named_with_its_cooling_time_and_limit(seed,
+                                                                                   tmp_path):
     """Seed 705: the generator's damping falls as c1 (1 − κT) down to a floor of 5 % of
     c1, its fluid heated by c1 ż²/C and cooled in 4.7 s: a dominant drift (29 % of the
     peak force) that reaches the floor within a run. Without a limit the library's
     drift runs the mass away where the damping would cross zero, and the loop ended at
     58 x noise. With θ_max placed by the data and refitted, the heat capacity the
     library cannot see (its heating is held) leaves the cooling time and the damping
-    lost at the floor to compare with the generator's."""
-    doc = _fit(705, ("thermal",), tmp_path)
+    lost at the floor to compare with the generator's.
+
+    Seed 704: a drift of the same size that cools in 2.7 s, each run starting cool.
+    Identification bends Eq 10 around it (α 356 1/m against 75, c1 1.78 kN s/m against
+    6.73), and the drift refitted from there and from the base refit's constants stayed
+    in a valley with the stop velocity at 0.15 m/s: 23.5 x noise. Refitted also from
+    the report's average constants, which never saw the runs (`close_identified`), with
+    each run started cool, it reaches the noise: 1.02 x, 2.697 s against 2.696."""
+    doc = _fit(seed, ("thermal",), tmp_path)
     assert doc["effects_added"] == ["thermal_damping_drift"]
-    assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01
+    assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01, 1.02
     assert doc["unexplained"]["value"] is False
-    truth = gen.make_campaign(705, ("thermal",))
+    truth = gen.make_campaign(seed, ("thermal",))
     e, c1 = truth.effects[0], truth.constants["c1"]
     p = doc["parameters"]
     assert p["c_T.tau"]["value"] == pytest.approx(e["tau_T"], rel=0.05)  # 4.699 s vs 4.702
-    # at the floor the damping has lost 95 % of c1: c_T θ_max = −0.95 c1 (−6291 N s/m both)
+    # at the floor the damping has lost 95 % of c1: c_T θ_max = −0.95 c1 (705: −6291 N s/m
+    # both; 704: −6394 both)
     lost = p["c_T"]["value"] * p["c_T.theta_max"]["value"]
     assert lost == pytest.approx(-0.95 * c1, rel=0.05)
 

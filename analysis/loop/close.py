@@ -44,6 +44,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
+from analysis.identify.pipeline import IsolatorFit, start_model
 from analysis.identify.run_data import RunData
 from analysis.loop.candidate_fit import (
     NOISE_LEVEL,
@@ -63,7 +64,7 @@ from analysis.loop.pair import pair_step
 from analysis.loop.polish import polished, restarted, step_candidates
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
 from analysis.loop.result import LoopResult, Step
-from analysis.loop.runs import LoopRun, run_errors
+from analysis.loop.runs import LoopRun, loop_runs, run_errors
 from analysis.model.isolator import IsolatorModel
 
 MAX_TRIED = 2  # equation error's names refitted per step, in its order
@@ -71,11 +72,27 @@ UNEXPLAINED_LEVEL = 1.3
 MAX_EFFECTS = 4
 
 
+def close_identified(fit: IsolatorFit, progress: Callable[[str], None] = lambda m: None
+                     ) -> LoopResult:
+    """The loop as `analysis fit` and a lot's units run it: on the runs as identification
+    prepared them, from the identified model and from the report's average constants
+    (identification's own start), which never saw the runs."""
+    return close_loop(fit.model, loop_runs(fit), progress=progress,
+                      prior=start_model(fit.model.parameters()["m"]))
+
+
 def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int = MAX_EFFECTS,
-               progress: Callable[[str], None] = lambda m: None) -> LoopResult:
-    """Refit `model` on the runs, then add effects from the library while the data ask."""
+               progress: Callable[[str], None] = lambda m: None,
+               prior: IsolatorModel | None = None) -> LoopResult:
+    """Refit `model` on the runs, then add effects from the library while the data ask.
+
+    Each candidate is also refitted from `model`, and one with a state from `prior` too
+    (`refit_from_start`): `model` identified from these runs has absorbed what an effect
+    does, `prior` never saw them (`close_identified`).
+    """
     data = [r.data for r in runs]
-    start = Hypothesis(model)  # kept: each candidate is also refitted from it (refit_from_start)
+    start = Hypothesis(model)
+    starts = [start] + ([Hypothesis(prior)] if prior is not None else [])
     # δ and ε free with the rest: a base fit that absorbed an effect moved them too (a
     # hardening spring from the independent generator: 18.7 x noise with them held)
     free = constants_present(model) + [n for n in STOP[::-1]  # ε, δ: column order
@@ -91,7 +108,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         # `_name`), and only the first may be equation error's weak one (`Naming.weak`):
         # after an effect whose library shape is not the data's, what is left above the
         # noise is that shape's misfit, which any column cuts a little
-        step, why, better = _one_step(fit, free, runs, diag, progress, start,
+        step, why, better = _one_step(fit, free, runs, diag, progress, starts,
                                       None if steps else model)
         refused.extend(why)
         if step is None:
@@ -167,7 +184,7 @@ def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunDa
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-              progress: Callable[[str], None], start: Hypothesis | None = None,
+              progress: Callable[[str], None], starts: Sequence[Hypothesis] = (),
               identified: IsolatorModel | None = None):
     """Name by equation error, confirm by output error: (step, refused, better fit).
 
@@ -209,7 +226,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         s, c, cand_h = _scored(fit, data, naming, name)
         if s.name in tried:
             continue
-        step, why, better, cf = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, start,
+        step, why, better, cf = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, starts,
                                                  progress)
         refused.extend(why)
         if step is not None or better is not None:
@@ -261,7 +278,7 @@ def _name(h: Hypothesis, data: Sequence[RunData], present: Sequence[str],
 
 
 def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-                     s: Score, c: Candidate, cand_h: Hypothesis, start: Hypothesis | None,
+                     s: Score, c: Candidate, cand_h: Hypothesis, starts: Sequence[Hypothesis],
                      progress: Callable[[str], None]):
     """One named candidate refitted and judged: (step, refused, better fit or None, its
     refit)."""
@@ -271,7 +288,7 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
     if cf.residual_over_noise > NOISE_LEVEL:
         # not at the noise from the fitted constants: perhaps they have soaked up the
         # effect (`refit_from_start`)
-        cf = refit_from_start(start, cf, cand_h, free, s, c, sizes, runs,
+        cf = refit_from_start(starts, cf, cand_h, free, s, c, sizes, runs,
                               progress)
     refits = [(s, c, cand_h, sizes, cf)]
     if (freed := with_stop_freed(cf, free, s, c, runs)) is not None:

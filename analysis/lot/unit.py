@@ -24,9 +24,8 @@ from pathlib import Path
 from analysis.fit_schema import FitResult
 from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import REFINED, identify
-from analysis.loop import close_loop
+from analysis.loop import close_identified
 from analysis.loop.report import fit_document
-from analysis.loop.runs import loop_runs
 from rig.errors import DataError
 
 RUN_SUFFIXES = (".h5", ".hdf5", ".csv")  # what `analysis fit` reads: run files and CSV
@@ -167,7 +166,7 @@ def fit_unit(spec: UnitSpec, options: FitOptions) -> UnitResult:
         loaded = load_runs([Path(f) for f in spec.files], options.mass, options.units,
                            options.include_aborted)
         fit = identify(loaded.runs)
-        loop = close_loop(fit.model, loop_runs(fit))
+        loop = close_identified(fit)
     except (DataError, ValueError) as e:  # the unit's data, not the lot's: one line
         return failed(spec, one_line(e, spec.directory), time.perf_counter() - start)
     return from_fit(spec, fit_document(fit, loop), loaded.warnings, time.perf_counter() - start)
