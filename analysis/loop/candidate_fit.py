@@ -110,7 +110,7 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
     data = [r.data for r in runs]
     names = free + [s.name] + c.shape_parameters(cand_h.model)
     first = equation_error_start(cand_h, runs, {s.name: c})
-    stateful = bool(c.term_kind and kind(c.term_kind).has_state)
+    stateful = c.stateful
     if stateful:
         # the runs may each have been recorded from a fresh state (seals unloaded, fluid
         # cool): on unseen campaigns so made, a Bouc–Wen loop of the right shape fitted
@@ -203,25 +203,25 @@ def _other_shapes(fits: list[Fit], runs: Sequence[LoopRun], s: Score, c: Candida
     return found
 
 
-def refit_from_start(starts: Sequence[Hypothesis], cf: Fit, h: Hypothesis, free: list[str],
-                     s: Score, c: Candidate, sizes: list[float], runs: Sequence[LoopRun],
-                     progress: Callable[[str], None]) -> Fit:
+def refit_from_start(start: Hypothesis, prior: Hypothesis | None, cf: Fit, h: Hypothesis,
+                     free: list[str], s: Score, c: Candidate, sizes: list[float],
+                     runs: Sequence[LoopRun], progress: Callable[[str], None]) -> Fit:
     """The best of the candidate's refit `cf` and refits from the loop's start models
-    (`close_loop`: the model it was given, and a prior)."""
+    (`close_loop`): `start`, the model it was given, and for an effect with a state
+    `prior` too."""
     lo, hi = c.bounds(h.model)
     values = [float(np.clip(s.predicted_value, lo, hi))]
     values += [v for v in sizes if _distinct(v, values)]
-    stateful = bool(c.term_kind and kind(c.term_kind).has_state)
+    per_start = [_from_start(start, h, free, s.name, values)]
     # the prior for an effect with a state only (a drift, a hysteresis), whose refits
     # from an absorbing fit stay furthest off: for a stateless one its lower refit at a
     # step led two unseen campaigns to worse ends (a friction 1.12 -> 3.84 x noise, a
     # one-sided spring then a drift 1.09 -> 8.75 x)
-    per_start = [_from_start(starts[0], h, free, s.name, values)] if starts else []
-    for start in starts[1:] if stateful else []:
+    if prior is not None and c.stateful:
         # a prior knows nothing of how the runs were recorded: each from a fresh state,
         # or carried over, both raced as in `candidate_refit` (an unseen thermal drift
         # from the report's constants: 85 x noise carried over, 1.02 x each run cool)
-        per_start.append([h1 for h0 in _from_start(start, h, free, s.name, values)
+        per_start.append([h1 for h0 in _from_start(prior, h, free, s.name, values)
                           for h1 in (h0, replace(h0, fresh_states=not h0.fresh_states))])
     if not any(per_start):
         return cf

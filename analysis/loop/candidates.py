@@ -83,6 +83,12 @@ class Candidate:
     # preload's step; c2 tanh(βż) with a large β, a dry friction's
     takes_over: str = ""
 
+    @property
+    def stateful(self) -> bool:
+        """Whether its term carries a state from sample to sample (a drift's temperature,
+        a hysteresis's z_h), which a run may start afresh or carry over."""
+        return bool(self.term_kind) and kind(self.term_kind).has_state
+
     def typical(self, model: IsolatorModel) -> float:
         """The physics-sized magnitude of this effect for `model` (SI)."""
         p = model.parameters()

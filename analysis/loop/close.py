@@ -92,7 +92,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     """
     data = [r.data for r in runs]
     start = Hypothesis(model)
-    starts = [start] + ([Hypothesis(prior)] if prior is not None else [])
+    prior_h = Hypothesis(prior) if prior is not None else None
     # δ and ε free with the rest: a base fit that absorbed an effect moved them too (a
     # hardening spring from the independent generator: 18.7 x noise with them held)
     free = constants_present(model) + [n for n in STOP[::-1]  # ε, δ: column order
@@ -108,7 +108,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         # `_name`), and only the first may be equation error's weak one (`Naming.weak`):
         # after an effect whose library shape is not the data's, what is left above the
         # noise is that shape's misfit, which any column cuts a little
-        step, why, better = _one_step(fit, free, runs, diag, progress, starts,
+        step, why, better = _one_step(fit, free, runs, diag, progress, start, prior_h,
                                       None if steps else model)
         refused.extend(why)
         if step is None:
@@ -184,7 +184,7 @@ def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunDa
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-              progress: Callable[[str], None], starts: Sequence[Hypothesis] = (),
+              progress: Callable[[str], None], start: Hypothesis, prior: Hypothesis | None,
               identified: IsolatorModel | None = None):
     """Name by equation error, confirm by output error: (step, refused, better fit).
 
@@ -226,8 +226,8 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         s, c, cand_h = _scored(fit, data, naming, name)
         if s.name in tried:
             continue
-        step, why, better, cf = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, starts,
-                                                 progress)
+        step, why, better, cf = _refit_and_judge(fit, free, runs, diag, s, c, cand_h, start,
+                                                 prior, progress)
         refused.extend(why)
         if step is not None or better is not None:
             return None if step is None else ((step[0],), step[1]), refused, better
@@ -278,8 +278,8 @@ def _name(h: Hypothesis, data: Sequence[RunData], present: Sequence[str],
 
 
 def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
-                     s: Score, c: Candidate, cand_h: Hypothesis, starts: Sequence[Hypothesis],
-                     progress: Callable[[str], None]):
+                     s: Score, c: Candidate, cand_h: Hypothesis, start: Hypothesis,
+                     prior: Hypothesis | None, progress: Callable[[str], None]):
     """One named candidate refitted and judged: (step, refused, better fit or None, its
     refit)."""
     progress(f"loop: refitting with {c.name}")
@@ -288,8 +288,7 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
     if cf.residual_over_noise > NOISE_LEVEL:
         # not at the noise from the fitted constants: perhaps they have soaked up the
         # effect (`refit_from_start`)
-        cf = refit_from_start(starts, cf, cand_h, free, s, c, sizes, runs,
-                              progress)
+        cf = refit_from_start(start, prior, cf, cand_h, free, s, c, sizes, runs, progress)
     refits = [(s, c, cand_h, sizes, cf)]
     if (freed := with_stop_freed(cf, free, s, c, runs)) is not None:
         refits.append((s, c, cand_h, sizes, freed))

@@ -39,7 +39,6 @@ from analysis.identify.regressors import campaign_column, carries_state
 from analysis.identify.varpro import Data, project
 from analysis.loop.candidates import Candidate
 from analysis.model.isolator import IsolatorModel
-from analysis.model.terms import kind
 
 SHAPES = ("alpha", "beta", "delta")
 
@@ -132,7 +131,7 @@ def with_candidate(model: IsolatorModel, c: Candidate, param: str, runs: Moving
     free = [t.name for t in model.terms if t.name in LINEAR or t.coef != 0.0 or t.name == param]
     # the effect's own sign is checked after the solve: a drift's c_T is negative
     signed = _signed(model, free) + [param]
-    if not kind(c.term_kind).has_state:
+    if not c.stateful:
         r = _projected(model, c, param, runs.data, free, signed, None)
         return _saturated(r, c, param, runs, free, signed) if r is not None else None
     best = None
@@ -181,7 +180,7 @@ def _saturated(r: Reidentified, c: Candidate, param: str, runs: Moving, free: Se
             or p.get("k2", 0.0) == 0.0 or delta <= 0.0 or p["alpha"] * delta >= SOFT_EDGE):
         return r
     data = runs.data
-    if kind(c.term_kind).has_state:  # its column as `r` started the runs (α moves it not)
+    if c.stateful:  # its column as `r` started the runs (α moves it not)
         cols = state_columns(r.model, param, runs)
         data = replace(data, columns={param: cols.get(bool(r.fresh_states), cols[True])})
     best = None
