@@ -49,15 +49,18 @@ def test_a_thermal_drift_down_to_a_floor_is_named_with_its_cooling_time_and_limi
     assert lost == pytest.approx(-0.95 * c1, rel=0.05)
 
 
+# the longest campaign of the suite: 190-215 s alone on this 2-core machine, more beside
+# another worker; the limit is against a hang, not a measure of speed (bench/)
+@pytest.mark.timeout(600)
 def test_a_drift_the_base_fit_absorbed_is_named_on_every_kernel(tmp_path):
     """Seed 702: a drift cooling in 4.1 s, 4.5 % of the peak force, whose runs never heat
     the fluid to the generator's floor. The base fit bends Eq 10 round it (α 356 1/m
     against 81; 330 x noise). Identified again by equation error with the drift's
     column, each run from a cool fluid, α, β and δ searched, the drift is named under
     every BLAS kernel; the output-error refit from there still ends in a valley the
-    kernel chooses: 1.33 x noise under Haswell (τ 3.94 s against 4.1, k1 and c1 within
-    0.2 %), 10.5 x under SkylakeX, 138 x under Sandybridge (α 886 1/m). Only the name
-    and a residual cut to under half are kernel-proof, and only they are checked."""
+    kernel chooses: 1.05 x noise under Haswell, 1.18 x under SkylakeX, 45 x under
+    Sandybridge. Only the name and a residual cut to under half are kernel-proof, and
+    only they are checked."""
     doc = _fit(702, ("thermal",), tmp_path)
     assert doc["effects_added"] == ["thermal_damping_drift"]
     before = doc["residual_before"]["residual_over_noise"]
@@ -165,3 +168,23 @@ def test_a_one_sided_damping_whose_refit_kept_a_wrong_alpha_is_started_again(tmp
     assert doc["unexplained"]["value"] is False
     e = gen.make_campaign(505, ("asym_damping",)).effects[0]
     assert doc["parameters"]["c_ext"]["value"] == pytest.approx(e["c_a"], rel=0.05)
+
+
+def test_an_offset_refitted_in_the_identified_models_valley_is_started_from_the_prior(
+        tmp_path):
+    """Seed 1105: a force offset of −507 N (3.4 % of the peak force). Named first, its
+    refit from the identified model, which had bent Eq 10 round the offset, and every
+    restart near the final fit stopped at 2.04 x noise ("unexplained structure"). The
+    final fit started again with Eq 10's constants from the report's average
+    (`polish._from_prior`: the prior `analysis fit` gives the loop, which never saw the
+    runs) and the offset at its fitted size reaches the noise: 1.07 x (−508.1 N against
+    the generator's −507.3 N) under SkylakeX, 1.07 x (−508.0 N) under Haswell, 1.09 x
+    (−507.7 N) under Sandybridge."""
+    doc = _fit(1105, ("force_offset",), tmp_path)
+    assert doc["effects_added"] == ["force_offset"]
+    assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.07-1.09
+    assert doc["unexplained"]["value"] is False
+    e = gen.make_campaign(1105, ("force_offset",)).effects[0]
+    # within 0.16 % on the three kernels (its standard error 0.07 N); 2 % leaves room for
+    # another valley near the noise
+    assert doc["parameters"]["F0"]["value"] == pytest.approx(e["F0"], rel=0.02)

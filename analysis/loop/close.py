@@ -134,7 +134,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # the solver's misfit, or the model's?
         fit = polished(fit, data, step_candidates(fit, steps), progress)
     if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # or a valley next to it?
-        fit = restarted(fit, runs, step_candidates(fit, steps), progress)
+        fit = restarted(fit, runs, step_candidates(fit, steps), progress, prior_h)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
     steps = [replace(s, **dict(zip(("value", "std"), fit.param(s.parameter))))
