@@ -43,7 +43,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from analysis.identify.run_data import RunData
-from analysis.loop.candidate_fit import BASE_FREE, NOISE_LEVEL, STOP
+from analysis.loop.candidate_fit import NOISE_LEVEL, constants_from
 from analysis.loop.candidates import CANDIDATES, Candidate, yield_stiffness
 from analysis.loop.refit import Fit, Hypothesis, refit_free
 from analysis.loop.result import Step
@@ -175,9 +175,6 @@ def _from_prior(fit: Fit, prior: Hypothesis | None):
     """
     if prior is None:
         return
-    own = prior.model.parameters()
-    base = {n: own[n] for n in fit.names if n in BASE_FREE and n in own}
-    stop = {n: own[n] for n in fit.names if n in STOP and n in own}
-    yield fit.hypothesis.with_values(base), [], {}
-    if any(v != fit.hypothesis.value(n) for n, v in stop.items()):
-        yield fit.hypothesis.with_values({**base, **stop}), [], {}
+    starts = constants_from(prior, fit.hypothesis, fit.names)
+    for constants in starts[:1] + [c for c in starts[1:] if c != starts[0]]:
+        yield fit.hypothesis.with_values(constants), [], {}
