@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import queue
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -66,6 +67,12 @@ log = logging.getLogger(__name__)
 BASELINE_S = 0.3  # s logged before START: the sensors' rest values
 SETTLE_S = 0.3  # s logged after STOP
 PUMP_BATCH = 64  # received items handled between two looks at the setpoint schedule
+# The receive threads, the runner and (in tests and campaigns) the simulated rig share
+# the GIL. A thread back from a C call (a socket read, an HDF5 write) waits up to the
+# switch interval for it: at Python's 5 ms, with the per-core speed of a busy shared
+# host, setpoints went out late enough for the actuators' watchdog (0.1 s) to hold and
+# the receive queue fell 1 s behind; at 0.5 ms the same runs kept up.
+RUN_SWITCH_INTERVAL_S = 5e-4
 
 
 class BusLost(RunAborted):
@@ -158,6 +165,8 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
     bus = open_bus(config)
     port = receivers = writer = rec = loop = None
     untrap: Callable[[], None] = _nothing
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch_interval, RUN_SWITCH_INTERVAL_S))
     status, reason, bus_dead = "fail", "", False
     t_begin = time.monotonic()
     try:
@@ -201,6 +210,7 @@ def _run(config: RigConfig, profile: Profile, profile_text: str, plan: ActuatorP
                 control.publish(loop.status(status, reason or status))
         finally:
             untrap()
+            sys.setswitchinterval(switch_interval)
     return RunResult(path, status, reason, time.monotonic() - t_begin,
                      dict(rec.counts), dict(rec.lost), rec.crc_errors)
 
