@@ -187,12 +187,26 @@ class ActuatorController:
     def tick(self, t: float) -> int:
         """The servo tick at plant time `t` (s): while RUNNING the setpoint index played."""
         with self._lock:
-            origin_t, origin_tick = self._tick_origin
+            origin = self._tick_origin
+        return self._tick_from(origin, t)
+
+    def _tick_from(self, origin: tuple[float, int], t: float) -> int:
+        origin_t, origin_tick = origin
         return origin_tick + math.floor((t - origin_t) * self.rate)
 
     def feedback(self, t: float, position: float) -> can.Message:
-        """The feedback frame for `position` (m) measured at plant time `t` (s)."""
-        return cm.to_can(cm.Feedback(self.index, self.tick(t), position, self.state, self.faults))
+        """The feedback frame for `position` (m) measured at plant time `t` (s).
+
+        Tick, state and faults are read in one hold of the lock: read apart, a START
+        taking effect between them (the server thread) gave a frame RUNNING with the
+        tick of before the run, whose setpoint the rig took from the end of the
+        profile (seen: "actuator 1 following error 76.2 mm at setpoint 7603" on a
+        3 in ramp, 0.5 s into the run, under GIL contention).
+        """
+        with self._lock:
+            origin, state, faults = self._tick_origin, self.state, self.faults
+        return cm.to_can(cm.Feedback(self.index, self._tick_from(origin, t), position, state,
+                                     faults))
 
     def sends_feedback(self, t: float) -> bool:
         """False once the fault `feedback_muted_from` has begun (a stalled feedback stream)."""
