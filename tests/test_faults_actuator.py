@@ -25,7 +25,6 @@ from rig.run import runner
 from rig.run.interlocks import (
     FEEDBACK_LIVENESS_S,
     FOLLOWING_LIMIT_M,
-    SERVO_LAG_S,
     START_GRACE_S,
     Interlocks,
 )
@@ -70,18 +69,17 @@ def test_a_stuck_valve_trips_the_following_interlock_naming_the_actuator(
     assert tripped, out.result.reason
     tick, stamp = int(tripped[1]), float(tripped[2])  # the tripping feedback's tick, bus s
     # the first tick a feedback could trip on: its setpoint window all 1 in from the piston
-    feedback = out.run.channels["actuator_feedback_3"]
-    stuck_at = float(feedback.value[-1])  # m, where it stuck (as it reported)
+    stuck_at = float(out.run.channels["actuator_feedback_3"].value[-1])  # m, as reported
     plan = actuator_plan(hardware(sim), load_profile(profile_file(tmp_path, "fault", 3.0, 0.6)))
-    lag = round(SERVO_LAG_S * plan.rate)
-    column = plan.extension[:, 2]
+    watch = Interlocks(plan.rate)
+    watch.start(plan, 0.0)
     stuck_from = sim.actuators[2].tick(out.injected)  # the servo tick it stuck at
-    beyond = [k for k in range(max(stuck_from, 0), len(column))
-              if min(abs(column[max(k - lag, 0):k + 2] - stuck_at)) > FOLLOWING_LIMIT_M]
-    assert beyond, "the setpoints never moved 1 in from the stuck valve"
+    first = next((k for k in range(max(stuck_from, 0), len(plan.t))
+                  if watch.following_error(3, k, stuck_at) > FOLLOWING_LIMIT_M), None)
+    assert first is not None, "the setpoints never moved 1 in from the stuck valve"
     per_feedback = round(plan.rate * FEEDBACK_PERIOD_S)  # ticks between two feedbacks
     # one tick either side for the 1 µm resolution of the reported position
-    assert beyond[0] - 1 <= tick <= beyond[0] + per_feedback, (tick, beyond[0])
+    assert first - 1 <= tick <= first + per_feedback, (tick, first)
     # the rig's reaction: from the tripping frame on the bus to the last actuator safe
     frames = out.run.can
     stamped = frames.time[frames.arbitration_id == cm.FEEDBACK_BASE + 3]
