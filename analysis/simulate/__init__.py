@@ -83,12 +83,7 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
     z, zd, xdd = np.empty(n), np.empty(n), np.empty(n)
     f, s, st = np.empty((nt + 1, n)), np.empty((nt, n)), np.empty(n)
     breaks = np.ascontiguousarray(motion.x, float)
-    # the coefficients as a strided view, the array type simulate_jobs hands over (numba's
-    # layout "A"): the two share one compiled simulate_one, where a contiguous array here
-    # was a second compile in full, 70 s on a 2-core machine's first `sim` command
-    padded = np.zeros((motion.c.shape[0], motion.c.shape[1] + 1))
-    padded[:, :-1] = motion.c
-    coefs = padded[:, :-1]
+    coefs = kernel_coefs(motion)
     simulate_one(kinds, gated, model.vector(), breaks, coefs, start, dt, n, substeps,
                  z0, zd0, _initial_states(s0, 1, nt)[0], z, zd, xdd, f, s, st, *workspace(nt))
     t = start + dt * np.arange(n)
@@ -99,6 +94,15 @@ def simulate(model: IsolatorModel, motion: PPoly, duration: float | None = None,
               if kind(term.kind).has_state}
     return Response(t=t, u=u, ud=ud, udd=udd, x=z + u, z=z, zd=zd, xdd=xdd, forces=forces,
                     states=states, stuck=st > 0.5)
+
+
+def kernel_coefs(motion: PPoly) -> np.ndarray:
+    """`motion`'s coefficients as a strided view, the array type simulate_jobs hands over
+    (numba's layout "A"): every caller shares one compiled simulate_one, where a contiguous
+    array was a second compile in full, 70 s on a 2-core machine's first `sim` command."""
+    padded = np.zeros((motion.c.shape[0], motion.c.shape[1] + 1))
+    padded[:, :-1] = motion.c
+    return padded[:, :-1]
 
 
 def _initial_states(s0: ArrayLike | None, rows: int, nt: int) -> np.ndarray:

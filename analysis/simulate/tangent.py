@@ -64,6 +64,7 @@ from analysis.model.terms import (
     THERMAL_DAMPER,
     basis,
 )
+from analysis.simulate import _grid, kernel_coefs
 from analysis.simulate.kernel import (
     EV_BAND,
     EV_BREAKAWAY,
@@ -84,6 +85,7 @@ from analysis.simulate.kernel import (
     required_force,
     rhs,
     rk4_step,
+    workspace,
 )
 
 NO_REFCOUNT = {"_nrt": False}  # as the kernel's calls: these allocate nothing
@@ -296,7 +298,7 @@ def base_jerk(breaks, coefs, t):
 
 @njit(cache=True, **NO_REFCOUNT)
 def event_partials(i, kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd,
-                   direction, col_term, col_slot, col_global, gy, gp):
+                   direction, col_term, col_slot, col_global, gy, gp, scratch):
     """g_y (N,), g_p (n,) of event i at (t, y) for the modes it was armed in; returns g_t."""
     nt = kinds.shape[0]
     ns = gp.shape[0]
@@ -327,14 +329,7 @@ def event_partials(i, kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, 
         # g = ±(F_break − |m ü + F(z, 0, s)|): breakaway +, grip −
         ua = base_motion(breaks, coefs, t)[2]
         m = p[P_MASS]
-        freq = m * ua
-        for j in range(nt):
-            if gated[j] and not outside:
-                continue
-            o = N_GLOBAL + TERM_WIDTH * j
-            if p[o] != 0.0:
-                freq += p[o] * basis(kinds[j], y[0], 0.0, sz, 0.0, y[2 + j], p[o + 1], p[o + 2],
-                                     p[o + 3])
+        freq = required_force(kinds, gated, p, y, sz, outside, ua, scratch)
         sf = _sign(freq)
         w = 1.0 if i == EV_BREAKAWAY else -1.0  # g's sign
         gt = -w * sf * m * base_jerk(breaks, coefs, t)
@@ -370,22 +365,12 @@ def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0
     nt = kinds.shape[0]
     n = 2 + nt
     ns = col_term.shape[0]
-    y = np.zeros(n)
-    y1 = np.zeros(n)
-    ytry = np.zeros(n)
-    k1 = np.zeros(n)
-    k2 = np.zeros(n)
-    k3 = np.zeros(n)
-    k4 = np.zeros(n)
-    tmp = np.zeros(n)
-    dy = np.zeros(n)
-    fm = np.zeros(n)
-    fp = np.zeros(n)
-    gy = np.zeros(n)
-    scratch = np.zeros(max(nt, 1))
-    g0 = np.zeros(N_EVENTS)
-    g1 = np.zeros(N_EVENTS)
-    gt = np.zeros(N_EVENTS)
+    work, scratch, events = workspace(nt)
+    y, y1, ytry = work[0], work[1], work[2]
+    k1, k2, k3, k4 = work[3], work[4], work[5], work[6]
+    tmp = work[7]
+    fm, fp, gy = np.zeros(n), np.zeros(n), np.zeros(n)  # rates across a switch, g_y
+    g0, g1, gt = events[0], events[1], events[2]
     Y = np.zeros((n, ns))
     Y1 = np.zeros((n, ns))
     K1 = np.zeros((n, ns))
@@ -563,7 +548,7 @@ def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0
                         scratch)
                     gtime = event_partials(i_best, kinds, gated, p, breaks, coefs, t, y, stuck0,
                                            outside0, sz0, szd0, direction, col_term, col_slot,
-                                           col_global, gy, gp)
+                                           col_global, gy, gp, scratch)
                     event_values(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd,
                                  direction, uses_sz, uses_szd, gt, scratch)
                     nev += 1
@@ -606,7 +591,6 @@ def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0
             if slip != 0.0:
                 stuck = False
                 szd = slip
-        rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, dy, scratch)
         out_z[k] = y[0]
         for c in range(ns):
             out_dz[c, k] = Y[0, c]
@@ -617,8 +601,6 @@ def motion_sensitivity(model: IsolatorModel, motion: PPoly, names: Sequence[str]
                        t0: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """z (n,) of `model` driven by `motion` from rest, as `simulate` gives it, and
     d z / d p (len(names), n) of the named constants (SI: m per unit of each)."""
-    from analysis.simulate import _grid
-
     start, n = _grid(motion, duration, dt, t0)
     idx = model.vector_index()
     cols = [idx[name] for name in names]
@@ -630,9 +612,7 @@ def motion_sensitivity(model: IsolatorModel, motion: PPoly, names: Sequence[str]
     kinds, gated = model.structure()
     z = np.empty(n)
     dz = np.empty((len(names), n))
-    padded = np.zeros((motion.c.shape[0], motion.c.shape[1] + 1))
-    padded[:, :-1] = motion.c
     simulate_tangent(kinds, gated, model.vector(), np.ascontiguousarray(motion.x, float),
-                     padded[:, :-1], start, dt, n, 1, 0.0, 0.0, np.zeros(len(model.terms)),
+                     kernel_coefs(motion), start, dt, n, 1, 0.0, 0.0, np.zeros(len(model.terms)),
                      col_term, col_slot, col_global, z, dz)
     return z, dz
