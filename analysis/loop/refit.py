@@ -41,6 +41,7 @@ from analysis.loop.candidates import (
 from analysis.model.isolator import IsolatorModel
 from analysis.model.terms import BOUC_WEN
 from analysis.simulate import RunSetup, simulate_batch, simulate_runs
+from analysis.simulate.tangent import runs_sensitivity
 
 MAX_NFEV = 40  # evaluations of a refit: past it the step is seldom worth its time
 UNSTABLE = 1e6  # residual, in noise units, given to samples of a run that diverged
@@ -100,7 +101,7 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
     # another's shape ending insignificant
     hysteretic = [(j, t.shape) for j, t in enumerate(h.model.terms) if t.kind == "bouc_wen"]
     S0 = np.zeros((rows.shape[0], len(h.model.terms)))
-    if h.fresh_states or not (thermal or hysteretic):  # each run starts from zero states
+    if not carries_states(h):  # each run starts from zero states
         return _sensed(runs, gain, delay, _independent_runs(h, runs, V, S0, gain))
     out = []
     z_end = None
@@ -345,11 +346,20 @@ def refit_free(h: Hypothesis, data: Sequence[RunData], names: Sequence[str],
 
 
 class _Evaluator:
-    """Residual and finite-difference Jacobian of the scaled parameters θ, computed apart.
+    """Residual and Jacobian of the scaled parameters θ, computed apart.
+
+    The Jacobian is forward differences of step `fd_step`. With `tangent` it is the
+    motion's forward sensitivities instead (`simulate.tangent`: one integration of each
+    run with the tangent of every parameter, about five plain simulations' cost where
+    finite differences take n + 1), the sensor map's by the chain rule, wherever no run
+    starts from the internal states the one before left (those the tangent does not
+    follow across runs and the settling between). The refits keep the finite
+    differences: over the unseen benchmark the exact slopes cost as much in all and end
+    in worse valleys more often (docs/loop.md, "Speed").
 
     The trust-region solver evaluates the residual at every trial point but the
-    Jacobian only where a step is accepted, so a rejected trial should cost one
-    simulated row, not n + 1. Rows are integrated in parallel, one per thread, so a
+    Jacobian only where a step is accepted, so a rejected trial costs one simulated
+    row. For finite differences, rows are integrated in parallel, one per thread, so a
     trial also simulates the first few perturbed rows on threads that would otherwise
     idle (n mod threads of them): an accepted step then costs no more parallel rounds
     than one n + 1 batch. Each row of a batch is integrated on its own, so residual and
@@ -357,10 +367,11 @@ class _Evaluator:
     same path.
     """
 
-    def __init__(self, h, runs, names, scales, use, fd_step):
+    def __init__(self, h, runs, names, scales, use, fd_step, tangent: bool = False):
         self.h, self.runs, self.names, self.scales, self.use = h, runs, names, scales, use
         self.fd_step = fd_step
-        self.ahead = len(names) % max(numba.get_num_threads(), 1)
+        self.tangent = tangent and not carries_states(h)
+        self.ahead = 0 if self.tangent else len(names) % max(numba.get_num_threads(), 1)
         self._rows: dict[bytes, tuple[list[np.ndarray], np.ndarray]] = {}  # θ → (x, residual)
         self._jac: tuple[bytes, np.ndarray] | None = None
 
@@ -395,7 +406,9 @@ class _Evaluator:
 
     def jacobian(self, theta: np.ndarray, *_) -> np.ndarray:
         key = theta.tobytes()
-        if self._jac is None or self._jac[0] != key:
+        if (self._jac is None or self._jac[0] != key) and self.tangent:
+            self._jac = (key, self._tangent_jacobian(theta))
+        elif self._jac is None or self._jac[0] != key:
             ahead = self._at(theta)[0]
             steps, rows = self._steps(theta)
             with np.errstate(over="ignore", invalid="ignore"):
@@ -408,6 +421,60 @@ class _Evaluator:
             J[np.abs(J) > UNSTABLE / self.fd_step] = 0.0
             self._jac = (key, J)
         return self._jac[1]
+
+    def _tangent_jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """d residual / d θ from the motion's forward sensitivities (simulate.tangent), the
+        sensor map's by the chain rule: x_meas = (1 + g) x(t − d)."""
+        values = theta * self.scales
+        h = self.h.with_values(dict(zip(self.names, values.tolist())))
+        g, d, delta = h.sensor_gain, h.sensor_delay, h.model.dead_band
+        steps = self.fd_step * np.maximum(np.abs(theta), 1.0) * self.scales
+        columns = [None if n in SENSOR_PARAMETERS else n for n in self.names]
+        setups, slopes = [], []
+        for k in self.use:
+            run = self.runs[k]
+            z0, zd0 = start_state(run, g, delta)
+            setups.append(RunSetup(run.motion, run.t[-1] - run.t[0], run.dt, run.t[0], z0, zd0))
+            # the start is read from the data through the sensor's gain and put on the dead
+            # band's edge: its slopes by the finite difference the FD Jacobian takes
+            d0 = np.zeros((len(self.names), 2))
+            for j, n in enumerate(self.names):
+                if n in (SENSOR_GAIN, "delta"):
+                    moved = (start_state(run, g + steps[j], delta) if n == SENSOR_GAIN
+                             else start_state(run, g, delta + steps[j]))
+                    d0[j] = (np.array(moved) - (z0, zd0)) / steps[j]
+            slopes.append(d0)
+        jac = []
+        with np.errstate(over="ignore", invalid="ignore"):
+            for k, (z, dz) in zip(self.use, runs_sensitivity(h.model, setups, columns, slopes)):
+                run = self.runs[k]
+                x = z + run.motion(run.t)
+                dx = np.vstack([(1.0 + g) * np.interp(run.t - d, run.t, row) for row in dz])
+                for j, n in enumerate(self.names):
+                    if n == SENSOR_GAIN:
+                        dx[j] += np.interp(run.t - d, run.t, x)
+                    elif n == SENSOR_DELAY:
+                        dx[j] = -(1.0 + g) * slope_before(run.t, x, run.t - d)
+                jac.append((dx * self.scales[:, None] / run.sigma_x).T)
+        J = np.nan_to_num(np.vstack(jac), nan=0.0, posinf=0.0, neginf=0.0)
+        J[np.abs(J) > UNSTABLE / self.fd_step] = 0.0  # as the FD Jacobian's: a run diverged
+        return J
+
+
+def slope_before(t: np.ndarray, x: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """dx/dt of the linear interpolant of x on t just before each s (a delay's slope
+    seen as the delay grows); zero before t[0], where the interpolant holds x[0]."""
+    j = np.searchsorted(t, s, side="left")
+    inside = (j > 0) & (j < t.size)
+    j = np.clip(j, 1, t.size - 1)
+    return np.where(inside, (x[j] - x[j - 1]) / (t[j] - t[j - 1]), 0.0)
+
+
+def carries_states(h: Hypothesis) -> bool:
+    """Whether a run starts from the internal states (fluid θ, seals' r) the run before
+    left: then the prediction hands states between runs, which the tangent does not follow."""
+    return not h.fresh_states and any(t.kind in ("thermal_damper", "bouc_wen")
+                                      for t in h.model.terms)
 
 
 def _split(r: np.ndarray, sizes: Sequence[int]) -> list[np.ndarray]:

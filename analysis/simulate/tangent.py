@@ -20,9 +20,11 @@ The primal integration is the kernel's, call for call (`simulate_tangent` follow
 the kernel's to the last bit; tests/test_tangent.py checks both that and the slopes
 against converged finite differences. Measured there: one integration with the
 tangent of 9–11 constants costs about five plain ones, against n + 1 for a
-finite-difference Jacobian. The fits do not use it yet: their Jacobians are finite
-differences (docs/loop.md, "Speed", on why a change of Jacobian is measured over the
-whole benchmark first).
+finite-difference Jacobian. `runs_sensitivity` integrates several runs side by side on
+the cores, from a start that may itself move with a constant (a sensor's gain); the
+loop's refit takes its Jacobian from it on request (`refit._Evaluator`). The fits keep
+their finite differences, whose path over the unseen benchmark ends in better valleys
+(docs/loop.md, "Speed").
 
 Where the two differ, the tangent is the exact flow's: the finite differences also
 see where RK4's steps are split at events, an error of order h⁵ that moves with the
@@ -35,7 +37,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 from numba import njit
 from scipy.interpolate import PPoly
@@ -64,7 +68,7 @@ from analysis.model.terms import (
     THERMAL_DAMPER,
     basis,
 )
-from analysis.simulate import _grid, kernel_coefs
+from analysis.simulate import RunSetup, _check_step, _grid, kernel_coefs
 from analysis.simulate.kernel import (
     EV_BAND,
     EV_BREAKAWAY,
@@ -357,11 +361,14 @@ def event_partials(i, kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, 
     return gt
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd0, s0,
-                     col_term, col_slot, col_global, out_z, out_dz):
+                     dz0, dzd0, col_term, col_slot, col_global, out_z, out_dz):
     """`kernel.simulate_one`'s integration (the same calls, so the same z to the last bit)
-    with the tangent of the state carried along; out_dz (n, n_out): d z / d p_c."""
+    with the tangent of the state carried along; out_dz (n, n_out): d z / d p_c.
+    dz0, dzd0 (n,): the start's own slopes d z0 / d p_c, d ż0 / d p_c (a start read from
+    the data moves with the sensor's gain, one at the dead band's edge with δ); a column
+    whose col_term and col_global are both −1 has no constant of its own, only that start."""
     nt = kinds.shape[0]
     n = 2 + nt
     ns = col_term.shape[0]
@@ -378,6 +385,9 @@ def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0
     K3 = np.zeros((n, ns))
     K4 = np.zeros((n, ns))
     T = np.zeros((n, ns))
+    for c in range(ns):
+        Y[0, c] = dz0[c]
+        Y[1, c] = dzd0[c]
     acc = np.zeros(ns)
     gp = np.zeros(ns)
     dtau_ev = np.zeros(ns)  # d τ / d p of the last located event, at time ev_t
@@ -596,23 +606,59 @@ def simulate_tangent(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0
             out_dz[c, k] = Y[0, c]
 
 
+def _columns(model: IsolatorModel, names: Sequence[str | None]
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's column maps (col_term, col_slot, col_global) of the named constants;
+    None: a column with no constant of its own."""
+    idx = model.vector_index()
+    cols = [-1 if name is None else idx[name] for name in names]
+    col_global = np.array([c if 0 <= c < N_GLOBAL else -1 for c in cols], np.int64)
+    col_term = np.array([(c - N_GLOBAL) // TERM_WIDTH if c >= N_GLOBAL else -1 for c in cols],
+                        np.int64)
+    col_slot = np.array([(c - N_GLOBAL) % TERM_WIDTH if c >= N_GLOBAL else -1 for c in cols],
+                        np.int64)
+    return col_term, col_slot, col_global
+
+
 def motion_sensitivity(model: IsolatorModel, motion: PPoly, names: Sequence[str],
                        duration: float | None = None, dt: float = 1e-3,
                        t0: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """z (n,) of `model` driven by `motion` from rest, as `simulate` gives it, and
     d z / d p (len(names), n) of the named constants (SI: m per unit of each)."""
-    start, n = _grid(motion, duration, dt, t0)
-    idx = model.vector_index()
-    cols = [idx[name] for name in names]
-    col_global = np.array([c if c < N_GLOBAL else -1 for c in cols], np.int64)
-    col_term = np.array([(c - N_GLOBAL) // TERM_WIDTH if c >= N_GLOBAL else -1 for c in cols],
-                        np.int64)
-    col_slot = np.array([(c - N_GLOBAL) % TERM_WIDTH if c >= N_GLOBAL else -1 for c in cols],
-                        np.int64)
+    return runs_sensitivity(model, [RunSetup(motion, duration, dt, t0)], names)[0]
+
+
+def runs_sensitivity(model: IsolatorModel, setups: Sequence[RunSetup],
+                     names: Sequence[str | None],
+                     start_slopes: Sequence[np.ndarray] | None = None
+                     ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """z (n_k,) and d z / d p (len(names), n_k) of each run, its terms' internal states
+    starting at zero; the runs share the cores, one thread each.
+
+    names: the constants (None: a column with no constant, moved by its start only);
+    start_slopes[k] (len(names), 2): d (z0, ż0) / d p of run k's start, default zero.
+    """
+    col_term, col_slot, col_global = _columns(model, names)
     kinds, gated = model.structure()
-    z = np.empty(n)
-    dz = np.empty((len(names), n))
-    simulate_tangent(kinds, gated, model.vector(), np.ascontiguousarray(motion.x, float),
-                     kernel_coefs(motion), start, dt, n, 1, 0.0, 0.0, np.zeros(len(model.terms)),
-                     col_term, col_slot, col_global, z, dz)
-    return z, dz
+    p = model.vector()
+    s0 = np.zeros(len(model.terms))
+
+    def one(k: int) -> tuple[np.ndarray, np.ndarray]:
+        s = setups[k]
+        _check_step(s.dt, 1)
+        start, n = _grid(s.motion, s.duration, s.dt, s.t0)
+        d0 = (np.zeros((len(names), 2)) if start_slopes is None
+              else np.asarray(start_slopes[k], float).reshape(len(names), 2))
+        z = np.empty(n)
+        dz = np.empty((len(names), n))
+        simulate_tangent(kinds, gated, p, np.ascontiguousarray(s.motion.x, float),
+                         kernel_coefs(s.motion), start, s.dt, n, 1, s.z0, s.zd0, s0,
+                         np.ascontiguousarray(d0[:, 0]), np.ascontiguousarray(d0[:, 1]),
+                         col_term, col_slot, col_global, z, dz)
+        return z, dz
+
+    workers = min(len(setups), max(numba.get_num_threads(), 1))
+    if workers <= 1:
+        return [one(k) for k in range(len(setups))]
+    with ThreadPoolExecutor(workers) as pool:  # simulate_tangent releases the GIL
+        return list(pool.map(one, range(len(setups))))
