@@ -428,7 +428,7 @@ class _Evaluator:
         values = theta * self.scales
         h = self.h.with_values(dict(zip(self.names, values.tolist())))
         g, d, delta = h.sensor_gain, h.sensor_delay, h.model.dead_band
-        steps = self.fd_step * np.maximum(np.abs(theta), 1.0) * self.scales
+        steps = self._steps(theta)[0] * self.scales  # in SI, as the FD Jacobian's
         columns = [None if n in SENSOR_PARAMETERS else n for n in self.names]
         setups, slopes = [], []
         for k in self.use:
