@@ -135,3 +135,36 @@ def test_the_weak_name_is_the_largest_first_fall_and_only_a_fall():
     assert Naming((), (), {"b": 2.0, "a": 2.0}, 0.0, 10).weak() == ("b",)
     assert Naming((), (), {"preload": -0.6, "sensor_gain": -1.4}, 0.015, 339).weak() == ()
     assert Naming((), (), {}, 0.0, 0).weak() == ()
+
+
+def test_columns_closed_from_the_open_band_are_the_regressors_at_each_band():
+    """The naming builds every column once at the narrowest dead band and closes it to
+    each δ of its search by zeroing the gated terms inside the band; that must be
+    `campaign_regressors` at δ to the last bit, rows exactly at ±δ included, or the
+    names would move with the search's shortcut."""
+    import numpy as np
+
+    from analysis.identify.regressors import campaign_regressors
+    from analysis.loop.candidates import CANDIDATES
+    from analysis.loop.naming import OPEN_BAND, _closed_to, _opened
+
+    rng = np.random.default_rng(7)
+    model = report_model("average")
+    for name in ("cubic_stiffness", "asymmetric_stiffness", "quadratic_damping"):
+        model = CANDIDATES[name].add_to(model)[0]  # gated and ungated terms, Eq 10's too
+    deltas = [OPEN_BAND, 0.004, 0.0125, 0.02, 0.031]
+    z = [rng.uniform(-0.05, 0.05, 700),
+         np.r_[rng.uniform(-0.03, 0.03, 300), deltas, np.negative(deltas)]]
+    zd = [rng.normal(0.0, 0.2, zz.size) for zz in z]
+    gated = model.structure()[1]
+    assert gated.any() and not gated.all()  # both kinds of column are checked
+    opened = _opened(model, z, zd, 1e-3)
+    for d in deltas:
+        want = campaign_regressors(model.with_parameters(delta=d), z, zd, 1e-3)
+        got = _closed_to(opened, gated, d)
+        assert got.shape == want.shape
+        assert np.array_equal(got, want), d
+        # and not trivially: the band's rows are zero in a gated column only
+        inside = np.abs(np.concatenate(z)) <= d
+        if d > OPEN_BAND:
+            assert np.any(opened.Z[inside][:, gated] != 0.0)

@@ -279,9 +279,9 @@ def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Cand
     gated: dict[str, list[np.ndarray]] = {}
     zs, zds = [pr[0] for pr in per_run], [pr[1] for pr in per_run]
     blocks = np.cumsum([0] + [len(z) for z in zs])
+    opened = _opened(everything, zs, zds, dt)
     for d in deltas:
-        Z = campaign_regressors(everything.with_parameters(delta=max(float(d), 1e-9)),
-                                zs, zds, dt)
+        Z = _closed_to(opened, gated_terms, _band(d))
         for j, term in enumerate(everything.terms):
             key = _key(model, term.name, models)
             if key is None or (not gated_terms[j] and key in fixed):
@@ -295,15 +295,16 @@ def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Cand
     if SENSOR_DELAY in candidates or SENSOR_GAIN in candidates:
         own = [k for k in fixed if k.startswith("base:")]
         own_gated = [k for k in gated if k.startswith("base:")]
+        shifted = _shifted(model, zs, zds, dt)
         for i, d in enumerate(deltas):
             # the slopes of the force this δ's equation error fits, not of the model's: a
             # base fit bends its k's, α and δ to absorb a gain, and the gain's column from
             # that bent force explained nothing (BIC -4.9, 97 from the generating constants)
             A = np.column_stack([fixed[k] for k in own] + [gated[k][i] for k in own_gated])
             coef = np.linalg.lstsq(A, y, rcond=None)[0]
-            at = model.with_parameters(delta=max(float(d), 1e-9), **{
+            at = model.with_parameters(delta=_band(d), **{
                 k.split(":", 1)[1]: float(c) for k, c in zip(own + own_gated, coef)})
-            Fz, Fzd = _force_slopes(at, zs, zds, dt)
+            Fz, Fzd = _force_slopes(at, shifted, [len(z) for z in zs])
             if SENSOR_DELAY in candidates:
                 gated.setdefault(f"cand:{SENSOR_DELAY}", []).append(stack(
                     [-(a * pr[4] + b * pr[5]) for a, b, pr in zip(Fz, Fzd, per_run)]))
@@ -327,19 +328,65 @@ def _key(model: IsolatorModel, term: str, models: dict[str, tuple[IsolatorModel,
     return None
 
 
-def _force_slopes(model: IsolatorModel, z: Sequence[np.ndarray], zd: Sequence[np.ndarray],
-                  dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """∂F/∂z and ∂F/∂ż of the model's stateless force along each run (central differences)."""
+OPEN_BAND = 1e-9  # m: the dead band the naming's columns are built at, then closed to each δ
+
+
+def _band(d: float) -> float:
+    """A dead band of the search as the model holds it (a model's δ must be > 0)."""
+    return max(float(d), OPEN_BAND)
+
+
+@dataclass(frozen=True)
+class _Opened:
+    """The regressors at the narrowest dead band, and |z| per row: closed to any wider
+    band by zeroing the gated columns' rows inside it (`_closed_to`)."""
+
+    Z: np.ndarray
+    abs_z: np.ndarray
+
+
+def _opened(model: IsolatorModel, z: Sequence[np.ndarray], zd: Sequence[np.ndarray],
+            dt: float) -> _Opened:
+    return _Opened(campaign_regressors(model.with_parameters(delta=OPEN_BAND), z, zd, dt),
+                   np.abs(np.concatenate(z)))
+
+
+def _closed_to(opened: _Opened, gated: np.ndarray, delta: float) -> np.ndarray:
+    """The regressors at dead band `delta` (≥ OPEN_BAND): a gated term's basis is 0 where
+    |z| ≤ δ and the same everywhere else, whatever δ is (`regressors._series`), so this
+    is `campaign_regressors` at δ to the last bit, without integrating the columns again
+    for every δ of the search (41 of them, each with the force's four shifts below: a
+    fifth of the naming's time)."""
+    inside = opened.abs_z <= delta
+    return np.where(inside[:, None] & np.asarray(gated, bool)[None, :], 0.0, opened.Z)
+
+
+SLOPE_STEPS = (1e-4, 1e-3)  # m, m/s: below the motion's scale, above rounding
+
+
+def _shifted(model: IsolatorModel, z: Sequence[np.ndarray], zd: Sequence[np.ndarray],
+             dt: float) -> tuple[_Opened, ...]:
+    """The model's regressors at z + hz, z − hz, ż + hv, ż − hv (`_force_slopes`)."""
+    hz, hv = SLOPE_STEPS
+    return (_opened(model, [v + hz for v in z], zd, dt),
+            _opened(model, [v - hz for v in z], zd, dt),
+            _opened(model, z, [v + hv for v in zd], dt),
+            _opened(model, z, [v - hv for v in zd], dt))
+
+
+def _force_slopes(model: IsolatorModel, shifted: Sequence[_Opened], sizes: Sequence[int]
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """∂F/∂z and ∂F/∂ż of the model's stateless force along each run (central
+    differences of the regressors `_shifted` built, at the model's dead band)."""
     coef = np.array([t.coef for t in model.terms])
     stateless = np.array([not kind(t.kind).has_state for t in model.terms])
     coef = np.where(stateless, coef, 0.0)
-    hz, hv = 1e-4, 1e-3  # m, m/s: below the motion's scale, above rounding
-
-    def force(zz, vv):
-        return campaign_regressors(model, zz, vv, dt) @ coef
-
-    sizes = np.cumsum([0] + [len(v) for v in z])
-    Fz = (force([v + hz for v in z], zd) - force([v - hz for v in z], zd)) / (2 * hz)
-    Fzd = (force(z, [v + hv for v in zd]) - force(z, [v - hv for v in zd])) / (2 * hv)
-    return ([Fz[a:b] for a, b in itertools.pairwise(sizes)],
-            [Fzd[a:b] for a, b in itertools.pairwise(sizes)])
+    gated = model.structure()[1]
+    hz, hv = SLOPE_STEPS
+    up_z, down_z, up_zd, down_zd = (_closed_to(o, gated, model.dead_band) @ coef
+                                    for o in shifted)
+    Fz = (up_z - down_z) / (2 * hz)
+    Fzd = (up_zd - down_zd) / (2 * hv)
+    edges = np.cumsum([0, *sizes])
+    return ([Fz[a:b] for a, b in itertools.pairwise(edges)],
+            [Fzd[a:b] for a, b in itertools.pairwise(edges)])
