@@ -40,3 +40,20 @@ def _with_row(model, row):
     moved = model.with_parameters(k1=float(row[model.vector_index()["k1"]]))
     assert np.array_equal(moved.vector(), row)
     return moved
+
+
+def test_the_table_motion_on_a_grid_is_shared_read_only_and_its_own_per_grid():
+    """Every batch of a run shares one u (a fit simulates a run thousands of times):
+    read-only, so no caller can change another's, and another grid of the same motion
+    gets its own."""
+    model = report_model("A")
+    motion = load_profile("A").motion()
+    first, again, finer = (simulate_runs(model, [RunSetup(motion, 1.0, dt, 0.0)],
+                                         [model.vector()[None, :]])[0]
+                           for dt in (1e-3, 1e-3, 5e-4))
+    assert again.u is first.u and not first.u.flags.writeable
+    with pytest.raises(ValueError):
+        first.u[0] = 1.0
+    assert finer.u.size == 2001 and first.u.size == 1001
+    np.testing.assert_array_equal(finer.u[::2], first.u)
+    np.testing.assert_array_equal(first.u, motion(first.t))

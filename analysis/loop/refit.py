@@ -167,8 +167,11 @@ def _start_groups(run: RunData, gain: np.ndarray, dead_band: float
 
 def _sensed(runs: Sequence[RunData], gain: np.ndarray, delay: np.ndarray,
             x: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """What the mass sensor reads of each run's x: (1 + g) x(t − d), row by row."""
-    return [np.stack([(1.0 + g) * np.interp(run.t - d, run.t, xr)
+    """What the mass sensor reads of each run's x: (1 + g) x(t − d), row by row. At no
+    delay the samples are read as they are: interpolated at its own knots, np.interp
+    returns each knot's value exactly, so skipping it changes no bit (and saves one
+    pass over every row of every evaluation of a model without a delay)."""
+    return [np.stack([(1.0 + g) * (xr if d == 0.0 else np.interp(run.t - d, run.t, xr))
                       for g, d, xr in zip(gain, delay, xk)]) for run, xk in zip(runs, x)]
 
 

@@ -7,6 +7,7 @@ motion (what identification needs).
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -130,12 +131,29 @@ def _held(motion: PPoly, t: np.ndarray) -> np.ndarray:
     return motion(np.clip(t, motion.x[0], motion.x[-1]))
 
 
+# motion → {(start, dt, n): u}: a fit simulates the same runs thousands of times, and
+# evaluating a sampled table motion's thousands of pieces at every sample again took
+# 2 % of a campaign; weak, so a run's motion takes its grids with it when it goes
+_HELD: weakref.WeakKeyDictionary[PPoly, dict[tuple[float, float, int], np.ndarray]] = \
+    weakref.WeakKeyDictionary()
+
+
+def _held_on_grid(motion: PPoly, start: float, dt: float, n: int) -> np.ndarray:
+    """`_held` on the grid start + dt k (k < n), read-only: shared by every batch of it."""
+    grids = _HELD.setdefault(motion, {})
+    u = grids.get((start, dt, n))
+    if u is None:
+        u = grids[(start, dt, n)] = _held(motion, start + dt * np.arange(n))
+        u.flags.writeable = False
+    return u
+
+
 @dataclass(frozen=True)
 class BatchResponse:
     """Responses of N parameter sets: arrays are (N, n)."""
 
     t: np.ndarray
-    u: np.ndarray  # (n,), shared
+    u: np.ndarray  # (n,), shared between batches (read-only)
     z: np.ndarray
     zd: np.ndarray
     xdd: np.ndarray
@@ -214,6 +232,6 @@ def simulate_runs(model: IsolatorModel, setups: Sequence[RunSetup],
     for k, (s, (start, n)) in enumerate(zip(setups, grids)):
         rows = [j for j, (_, kk) in enumerate(jobs) if kk == k]
         t = start + s.dt * np.arange(n)
-        out.append(BatchResponse(t=t, u=_held(s.motion, t), z=z[rows, :n],
+        out.append(BatchResponse(t=t, u=_held_on_grid(s.motion, start, s.dt, n), z=z[rows, :n],
                                  zd=zd[rows, :n], xdd=xdd[rows, :n]))
     return out
