@@ -332,7 +332,7 @@ OPEN_BAND = 1e-9  # m: the dead band the naming's columns are built at, then clo
 
 
 def _band(d: float) -> float:
-    """A dead band of the search as the model holds it (a model's δ must be > 0)."""
+    """A dead band of the search as its columns are built: at least OPEN_BAND."""
     return max(float(d), OPEN_BAND)
 
 
@@ -355,8 +355,8 @@ def _closed_to(opened: _Opened, gated: np.ndarray, delta: float) -> np.ndarray:
     """The regressors at dead band `delta` (≥ OPEN_BAND): a gated term's basis is 0 where
     |z| ≤ δ and the same everywhere else, whatever δ is (`regressors._series`), so this
     is `campaign_regressors` at δ to the last bit, without integrating the columns again
-    for every δ of the search (41 of them, each with the force's four shifts below: a
-    fifth of the naming's time)."""
+    for every δ of the search (41 of them, each with the force's four shifts below:
+    about a third of the naming's time)."""
     inside = opened.abs_z <= delta
     return np.where(inside[:, None] & np.asarray(gated, bool)[None, :], 0.0, opened.Z)
 
