@@ -156,11 +156,9 @@ def _start_groups(run: RunData, gain: np.ndarray, dead_band: float
                   ) -> list[tuple[float, float, np.ndarray]]:
     """(z0, ż0, rows) per distinct start: each row starts at rest where its own sensor
     map (gain) says the mass was, so rows of one run may start apart."""
-    # once per distinct gain: the rows of a batch mostly share one (it took 5 % of a fit
-    # when every row read its start from the run afresh)
-    gains = gain.tolist()
-    at = {g: start_state(run, g, dead_band) for g in dict.fromkeys(gains)}
-    starts = np.array([at[g] for g in gains])
+    # `start_state` computes each (gain, dead band) once per run: the rows of a batch
+    # mostly share one
+    starts = np.array([start_state(run, g, dead_band) for g in gain.tolist()])
     return [(float(z0), float(zd0), np.all(starts == (z0, zd0), axis=1))
             for z0, zd0 in np.unique(starts, axis=0)]
 

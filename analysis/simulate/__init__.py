@@ -138,12 +138,13 @@ _HELD: weakref.WeakKeyDictionary[PPoly, dict[tuple[float, float, int], np.ndarra
     weakref.WeakKeyDictionary()
 
 
-def _held_on_grid(motion: PPoly, start: float, dt: float, n: int) -> np.ndarray:
-    """`_held` on the grid start + dt k (k < n), read-only: shared by every batch of it."""
+def _held_on_grid(motion: PPoly, t: np.ndarray, dt: float) -> np.ndarray:
+    """`_held` on the uniform grid t of step dt, read-only: shared by every batch of it."""
     grids = _HELD.setdefault(motion, {})
-    u = grids.get((start, dt, n))
+    key = (float(t[0]), dt, t.size)
+    u = grids.get(key)
     if u is None:
-        u = grids[(start, dt, n)] = _held(motion, start + dt * np.arange(n))
+        u = grids[key] = _held(motion, t)
         u.flags.writeable = False
     return u
 
@@ -232,6 +233,6 @@ def simulate_runs(model: IsolatorModel, setups: Sequence[RunSetup],
     for k, (s, (start, n)) in enumerate(zip(setups, grids)):
         rows = [j for j, (_, kk) in enumerate(jobs) if kk == k]
         t = start + s.dt * np.arange(n)
-        out.append(BatchResponse(t=t, u=_held_on_grid(s.motion, start, s.dt, n), z=z[rows, :n],
+        out.append(BatchResponse(t=t, u=_held_on_grid(s.motion, t, s.dt), z=z[rows, :n],
                                  zd=zd[rows, :n], xdd=xdd[rows, :n]))
     return out
