@@ -40,8 +40,8 @@ HYSTERESIS_SHAPE = (60.0, 20.0, 1.0)  # Bouc–Wen a, b in 1/m, n = 1: r saturat
 # second, θ follows ż² and the drift is a cubic damping, whose column outscored a sensor
 # delay's on an unseen campaign. The yields a factor of two apart down to 1.25 mm: with
 # 2.5 mm the least, unseen loops that yield at 1.2–1.8 mm were named a dry friction
-# (1.44 mm) or nothing (Bouc–Wen + gain 5401, 3.6 kN at 1.3 mm: 246 x noise; with
-# 1.25 mm both named). Below a millimetre a loop is a dry friction's twin
+# (1.44 mm) or refitted above the noise (Bouc–Wen 804, 1.75 mm: 2.26 x; with 1.25 mm,
+# 1.09 x). Below a millimetre a loop is a dry friction's twin
 THERMAL_SHAPES = tuple((THERMAL_SHAPE[0], b, 0.0) for b in (1.5, 5.0, THERMAL_SHAPE[1]))
 HYSTERESIS_SHAPES = tuple((0.75 / y**n, 0.25 / y**n, n) for n in (1.0, 2.0)
                           for y in (1.25e-3, 2.5e-3, 5e-3, 12.5e-3))
