@@ -85,7 +85,6 @@ def test_a_shaped_effect_is_named_first_at_a_shape_near_its_own(effect, seed):
         assert 0.5 < 1.0 / yield_stiffness(shape) / truth["y"] < 2.0
 
 
-
 @pytest.mark.parametrize("seed", [8, 22])
 def test_a_loop_that_yields_near_a_millimetre_is_named_at_a_yield_near_its_own(seed):
     """Bouc–Wen loops of the generator's that yield at 1.44 mm (seed 8) and 1.17 mm
@@ -101,6 +100,7 @@ def test_a_loop_that_yields_near_a_millimetre_is_named_at_a_yield_near_its_own(s
     falls = sorted(naming.first.values(), reverse=True)
     assert falls[0] - falls[1] > 3 * BIC_MARGIN
     assert 0.5 < 1.0 / yield_stiffness(naming.shapes["hysteresis"]) / c.effects[0]["y"] < 2.0
+
 
 def test_a_gain_the_base_fit_bent_its_springs_for_is_still_named_first(tmp_path):
     """A 2.7 % gain of the mass sensor (unseen seed 1003, drawn at a 13.5 % magnitude):

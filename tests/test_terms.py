@@ -184,7 +184,6 @@ def test_a_bouc_wen_loop_yields_at_its_exponents_root(n):
     assert r_tenth / (0.1 * y) == pytest.approx(1 - 0.1**n / (n + 1), abs=0.005)
 
 
-
 @pytest.mark.parametrize("n", [1.0, 2.0])
 def test_a_loop_that_yields_in_a_millimetre_stays_within_its_yield_at_a_fast_runs_rate(n):
     """At 1 kHz a loop that yields in 1.25 mm turns over at up to 1600 |ż| 1/s (n = 2):
@@ -201,6 +200,7 @@ def test_a_loop_that_yields_in_a_millimetre_stays_within_its_yield_at_a_fast_run
     exact = [state_after(BOUC_WEN, (a, b, n), fine[:100 * k], dt / 100, 0.0)
              for k in (60, 130, 380, 1000)]
     np.testing.assert_allclose(ends, exact, atol=0.02 * y)
+
 
 def test_a_model_written_before_the_exponent_reads_as_n_1():
     """A Bouc–Wen term saved with a and b only (the kind had no n) reads back with n = 1."""

@@ -49,13 +49,19 @@ MAX_SUBSTEPS = 64
 
 
 @njit(cache=True, inline="always")
-def _substeps(code, a, b, c, zd, dt):
-    """Midpoint steps to take across one sample: one unless the state is stiff there."""
+def _turnover(code, a, b, c, dt):
+    """A sample's stiffness per unit |ż|: how fast a Bouc–Wen state turns over, times dt
+    (0 for every other kind)."""
     if code != BOUC_WEN or a + b <= 0.0:
-        return 1
-    n = c if c >= 1.0 else 1.0
+        return 0.0
+    n = max(c, 1.0)
     # |∂r'/∂r| ≤ n (a + b) |ż| |r|^(n−1), and |r| stays within the yield (a + b)^(−1/n)
-    stiff = n * abs(zd) * (a + b) ** (1.0 / n) * dt
+    return n * (a + b) ** (1.0 / n) * dt
+
+
+@njit(cache=True, inline="always")
+def _substeps(stiff):
+    """Midpoint steps to take across one sample of stiffness `stiff`: one unless stiff."""
     if stiff <= STIFF_STEP:
         return 1
     if not stiff < MAX_SUBSTEPS * STIFF_STEP:  # NaN too
@@ -67,6 +73,7 @@ def _substeps(code, a, b, c, zd, dt):
 def _series(code, gated, a, b, c, z, zd, delta, dt, s0, out):
     """Fill `out` with one term's basis along (z, ż); return the state at the end."""
     s = s0
+    turnover = _turnover(code, a, b, c, dt)
     for i in range(z.shape[0]):
         outside = abs(z[i]) > delta if delta > 0.0 else True
         sz = 1.0 if z[i] > 0 else (-1.0 if z[i] < 0 else 0.0)
@@ -76,7 +83,7 @@ def _series(code, gated, a, b, c, z, zd, delta, dt, s0, out):
         else:
             out[i] = basis(code, z[i], zd[i], sz, szd, s, a, b, c)
         # midpoint steps of the state along the sampled motion (dt / 1 is dt exactly)
-        m = _substeps(code, a, b, c, zd[i], dt)
+        m = _substeps(turnover * abs(zd[i]))
         h = dt / m
         for _ in range(m):
             k1 = state_rate(code, z[i], zd[i], s, 1.0, a, b, c)
