@@ -185,3 +185,24 @@ def test_columns_closed_from_the_open_band_are_the_regressors_at_each_band():
         inside = np.abs(np.concatenate(z)) <= d
         if d > OPEN_BAND:
             assert np.any(opened.Z[inside][:, gated] != 0.0)
+
+
+def test_the_matched_filter_at_the_kept_rows_is_the_full_convolution_there():
+    """Naming filters every column only at the rows it keeps (one in 25); that must be
+    scipy's full convolution with the edges held ("nearest") at those rows, the first
+    and last rows included, or each column would be shifted against the target."""
+    import numpy as np
+    from scipy.ndimage import convolve1d
+
+    from analysis.loop.naming import _matched_kernel, _windows
+
+    rng = np.random.default_rng(3)
+    H = _matched_kernel(51, 1e-3)
+    x = rng.normal(size=1200).cumsum() + 40.0 * np.sin(np.arange(1200) / 30.0)
+    rows = np.r_[0, 3, rng.choice(np.arange(4, 1195), 60, replace=False), 1197, 1199]
+    want = convolve1d(x, H, mode="nearest")[rows]
+    got = x[_windows(rows, x.size, H.size)] @ H
+    assert np.allclose(got, want, rtol=0.0, atol=1e-13 * np.max(np.abs(want)))
+    # and not trivially: a window one row off is far from it
+    off = x[_windows(rows + 1, x.size, H.size)] @ H
+    assert not np.allclose(off, want, rtol=0.0, atol=1e-6 * np.max(np.abs(want)))

@@ -32,7 +32,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import convolve1d, minimum_filter1d
+from scipy.ndimage import minimum_filter1d
 from scipy.signal import lfilter, savgol_coeffs, savgol_filter
 
 from analysis.identify.pipeline import LINEAR
@@ -238,6 +238,7 @@ class _Samples:
     per_run: list[tuple[np.ndarray, ...]]  # (z, ż, x, ẋ, u̇, ü, m ẍ, kept rows)
     H: np.ndarray  # the matched filter
     dt: float
+    windows: list[np.ndarray]  # per run: the rows H spans around each kept row (`_windows`)
 
 
 def _samples(runs: Sequence[RunData], mass: float, sensor_delay: float) -> _Samples:
@@ -256,13 +257,22 @@ def _samples(runs: Sequence[RunData], mass: float, sensor_delay: float) -> _Samp
         moving[:wa] = moving[-wa:] = False
         keep = np.flatnonzero(moving)[::stride]
         per_run.append((z, zd, xs, xd, ud, udd, y, keep))
-    return _Samples(per_run, _matched_kernel(wa, dt), dt)
+    H = _matched_kernel(wa, dt)
+    return _Samples(per_run, H, dt, [_windows(pr[7], pr[0].size, H.size) for pr in per_run])
+
+
+def _windows(rows: np.ndarray, n: int, width: int) -> np.ndarray:
+    """(rows, width) indices such that x[w] @ H is convolve1d(x, H, mode="nearest")[rows]
+    for a kernel H of odd `width`: the filter at the kept rows only, where every column
+    is filtered at every δ of the grid and a full convolution of each threw away all but
+    one sample in 25 (its numbers agree to the last few bits, 7e-16 of the peak)."""
+    return np.clip(rows[:, None] + (width // 2 - np.arange(width))[None, :], 0, n - 1)
 
 
 def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Candidate],
              deltas: Sequence[float] = tuple(DELTA_GRID)) -> _Columns:
     """Every column on the moving samples of every run, filtered and decimated."""
-    per_run, H, dt = samples.per_run, samples.H, samples.dt
+    per_run, H, dt, W = samples.per_run, samples.H, samples.dt, samples.windows
     models = {name: c.add_to(model) for name, c in candidates.items()
               if c.term_kind}  # the model with the candidate, its parameter
     everything = model  # the model's own terms and every force candidate's
@@ -271,8 +281,7 @@ def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Cand
     gated_terms = everything.structure()[1]
 
     def stack(cols: Sequence[np.ndarray]) -> np.ndarray:
-        return np.concatenate([convolve1d(col, H, mode="nearest")[keep]
-                               for col, (*_, keep) in zip(cols, per_run)])
+        return np.concatenate([col[w] @ H for col, w in zip(cols, W)])
 
     y = np.concatenate([pr[6][pr[7]] for pr in per_run])
     fixed: dict[str, np.ndarray] = {}
@@ -286,8 +295,8 @@ def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Cand
             key = _key(model, term.name, models)
             if key is None or (not gated_terms[j] and key in fixed):
                 continue  # (an ungated column is the same at every dead band)
-            col = np.concatenate([convolve1d(Z[a:b, j], H, mode="nearest")[pr[7]]
-                                  for a, b, pr in zip(blocks[:-1], blocks[1:], per_run)])
+            col = np.concatenate([Z[a:b, j][w] @ H
+                                  for a, b, w in zip(blocks[:-1], blocks[1:], W)])
             if not gated_terms[j]:
                 fixed[key] = col
             else:
