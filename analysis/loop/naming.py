@@ -295,8 +295,7 @@ def _columns(model: IsolatorModel, samples: _Samples, candidates: dict[str, Cand
             key = _key(model, term.name, models)
             if key is None or (not gated_terms[j] and key in fixed):
                 continue  # (an ungated column is the same at every dead band)
-            col = np.concatenate([Z[a:b, j][w] @ H
-                                  for a, b, w in zip(blocks[:-1], blocks[1:], W)])
+            col = stack([Z[a:b, j] for a, b in zip(blocks[:-1], blocks[1:])])
             if not gated_terms[j]:
                 fixed[key] = col
             else:
