@@ -155,6 +155,28 @@ def test_a_friction_named_as_a_step_gets_its_build_up_back_in_the_final_fit(tmp_
     assert p["c3.v_s"]["value"] == pytest.approx(e["v_s"], rel=0.1)  # 9.6 against 9.9 mm/s
 
 
+def test_a_friction_whose_fit_swapped_it_with_eq_10s_tanh_damper_is_exchanged_back(tmp_path):
+    """Seed 105: a dry friction of 1.75 kN (12 % of the peak force) built up over
+    v_s = 5.6 mm/s, acting inside the dead band too. Under Haswell, named first and
+    refitted, every start of the loop ended in the valley where the two velocity terms
+    have swapped roles: Eq 10's c2 tanh(βż) sharp (1/β 0.05 mm/s, outside the dead
+    band only) and the friction smooth (v_s 35 mm/s), ε at 0.22 m/s (the generator's
+    0.016), at 3.84 x noise ("unexplained structure"). Started with the two exchanged
+    and δ, ε from the prior (`polish._roles_exchanged`), the final fit reaches the
+    noise with the generator's friction and c2 tanh(βż): 1.01 x, 1747 N against 1748,
+    β 64.6 against 64.9 s/m. Under SkylakeX and Sandybridge the loop takes another
+    path (a better base fit, then the friction as a step) to 1.12 x, 1721 N, β 62.7."""
+    doc = _fit(105, ("coulomb",), tmp_path)
+    assert doc["effects_added"] == ["coulomb_friction"]
+    assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01-1.12
+    assert doc["unexplained"]["value"] is False
+    truth = gen.make_campaign(105, ("coulomb",))
+    p = doc["parameters"]
+    # the swapped valley had the friction at 1.29 kN (-26 %) and β at 21 000 s/m
+    assert p["c3"]["value"] == pytest.approx(truth.effects[0]["F_c"], rel=0.05)  # -0.05, -1.5 %
+    assert p["beta"]["value"] == pytest.approx(truth.constants["beta"], rel=0.1)  # -0.4, -3.3 %
+
+
 def test_a_one_sided_damping_whose_refit_kept_a_wrong_alpha_is_started_again(tmp_path):
     """Seed 505: 1.45 kN s/m more damping in extension (11 % of the peak force). Named
     first and refitted, it stopped at 1.67 x noise with α at 70 1/m and β at 205 s/m

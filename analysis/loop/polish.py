@@ -35,7 +35,14 @@ points (`restarted`), for valleys the loop's steps do not search:
 - Eq 10's constants as the loop's prior has them (`_from_prior`), which never saw
   the runs, where the identified model the loop began from had bent them round the
   effect (seed 1105, an unseen force offset of −507 N: 2.04 x the noise, 1.07 from
-  the report's average, −508 N).
+  the report's average, −508 N);
+- a named dry friction and Eq 10's c2 tanh(βż) with their roles exchanged
+  (`_roles_exchanged`): both are a force that builds up with ż and saturates, one
+  acting outside the dead band only, and a fit can settle with the sharp one where the
+  smooth one belongs (seed 105, an unseen friction of 1.75 kN built up over 5.6 mm/s:
+  3.84 x the noise with c2 sharp (1/β 0.05 mm/s) and the friction smooth (v_s 35 mm/s);
+  started with the two exchanged, 1.05, the friction 1.75 kN and β 64.6 against the
+  generator's 64.9 s/m).
 """
 
 from __future__ import annotations
@@ -44,7 +51,12 @@ from collections.abc import Callable, Sequence
 
 from analysis.identify.run_data import RunData
 from analysis.loop.candidate_fit import NOISE_LEVEL, constants_from
-from analysis.loop.candidates import CANDIDATES, Candidate, yield_stiffness
+from analysis.loop.candidates import (
+    CANDIDATES,
+    FRICTION_BUILD_UP_MIN,
+    Candidate,
+    yield_stiffness,
+)
 from analysis.loop.refit import Fit, Hypothesis, refit_free
 from analysis.loop.result import Step
 from analysis.loop.runs import LoopRun, diverging_runs
@@ -94,12 +106,13 @@ def restarted(fit: Fit, runs: Sequence[LoopRun], candidates: dict[str, Candidate
     """The lowest of `fit` and refits of its free constants from starts near it: each
     added effect held at the library's own shape started at the library's other shapes
     with its shape constants freed, a hysteresis with its exponent freed too, α moved
-    (`ALPHA_MOVES`) where the fit frees it, and last Eq 10's constants from `prior`
-    (`_from_prior`); the first at the noise ends the search. A refit whose lone
+    (`ALPHA_MOVES`) where the fit frees it, Eq 10's constants from `prior`
+    (`_from_prior`), and last a dry friction and c2 tanh(βż) exchanged
+    (`_roles_exchanged`); the first at the noise ends the search. A refit whose lone
     prediction of a run runs away is not kept."""
     starts = [*_other_shapes(fit.hypothesis, candidates),
               *_exponent_freed(fit.hypothesis, candidates), *_alpha_moved(fit),
-              *_from_prior(fit, prior)]
+              *_from_prior(fit, prior), *_roles_exchanged(fit, prior)]
     if not starts:
         return fit
     progress(f"loop: the final fit stopped at {fit.residual_over_noise:.2f} x noise: "
@@ -178,3 +191,35 @@ def _from_prior(fit: Fit, prior: Hypothesis | None):
     starts = constants_from(prior, fit.hypothesis, fit.names)
     for constants in starts[:1] + [c for c in starts[1:] if c != starts[0]]:
         yield fit.hypothesis.with_values(constants), [], {}
+
+
+def _roles_exchanged(fit: Fit, prior: Hypothesis | None):
+    """(start, nothing more to free, no other candidate): each named dry friction
+    c tanh(ż/v_s) and Eq 10's c2 tanh(βż) exchanged, size for size and build-up for
+    build-up (v_s = 1/β), where the fit frees both sizes and both build-ups; the dead
+    band and the stop velocity from `prior`.
+
+    The two are one shape, a force that builds up over a velocity and then stays, and
+    differ only in where they act: the friction everywhere, c2 outside the dead band.
+    Which of the two is the sharp one is a valley of its own, which no other start
+    crosses (each moves one of them by a few per cent), and the fit has moved δ and ε
+    to make the swapped pair fit (seed 105: ε 0.22 m/s against the generator's
+    0.016; a friction + one-sided damping, seed 5502: δ closed and held since, against
+    19 mm). Exchanged with δ and ε left there, the two refitted to 10.5 and 8.2 x noise;
+    with the prior's, to 1.01 and 1.27 (5502's held there: freed, 4.6)."""
+    p = fit.hypothesis.model.parameters()
+    if not {"c2", "beta"} <= set(fit.names) or p["c2"] == 0.0 or p["beta"] <= 0.0:
+        return
+    # freed or held as the fit has them: a dead band the base fit closed stays held since
+    stop = {} if prior is None else {n: prior.value(n) for n in ("delta", "epsilon")
+                                     if n in p}
+    for term in fit.hypothesis.model.terms:
+        if term.kind != "coulomb" or term.name not in fit.names:
+            continue
+        (build_up,) = term.shape_names()
+        if build_up not in fit.names or term.shape[0] <= 0.0:
+            continue  # a step (v_s = 0) has no build-up to hand c2
+        # c2's build-up handed to the friction no sharper than the runs tell from a step
+        v_s = max(1.0 / p["beta"], FRICTION_BUILD_UP_MIN)
+        yield fit.hypothesis.with_values({"c2": term.coef, "beta": 1.0 / term.shape[0],
+                                          term.name: p["c2"], build_up: v_s, **stop}), [], {}
