@@ -1,7 +1,7 @@
 """The loop on data it has never seen, through the command a user runs.
 
-    python bench/loop_unseen.py [--quick] [--seeds N] [--jobs J] [--no-peers] [--only SEED,...]
-                                [--out FILE.json]
+    python bench/loop_unseen.py [--quick] [--seeds N] [--first K] [--jobs J] [--no-peers]
+                                [--only SEED,...] [--out FILE.json]
 
 Campaigns come from `bench/unseen/generator.py`, which shares no code or constants
 with the analysis (its own Eq 10 integrator, ramp shapes, effect shapes and sizes,
@@ -28,12 +28,15 @@ The peers of `bench/unseen/peers.py` (a stepwise equation-error fit with BIC, an
 PySINDy with a dead-band-gated library) are run on the same campaigns as the baseline.
 
 Full run: every effect × N seeds (default 5), clean × 2N, and the pairs below × 2
-seeds. `--quick`: every effect and clean, one seed each.
+seeds. `--quick`: every effect and clean, one seed each. `--first K` starts every
+effect's seeds at its K-th (clean and pairs from the matching later seeds): a draw the
+loop's choices were never made on, to see whether its scores hold out of sample.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import re
@@ -80,16 +83,22 @@ STAGES = (
 START_UP = "start-up, reading the files"
 
 
-def campaigns(quick: bool, seeds: int) -> list[tuple[int, tuple[str, ...]]]:
-    """(seed, effects) of every campaign; seeds differ per effect so plants differ too."""
+def campaigns(quick: bool, seeds: int, first: int = 1) -> list[tuple[int, tuple[str, ...]]]:
+    """(seed, effects) of every campaign; seeds differ per effect so plants differ too.
+    From `first` on: effect i's seeds are 100 (i + 1) + first …, clean 2 first − 1 …,
+    pair j's 5000 + 100 j + 2 first − 1 and the next (first = 1: the committed draw)."""
+    if not (1 <= first <= 49 and first + seeds <= 100):
+        # past them a seed would fall in the next effect's or pair's hundred
+        raise ValueError(f"first must lie in 1 … {min(49, 100 - seeds)} for {seeds} seeds")
     out: list[tuple[int, tuple[str, ...]]] = []
     n = 1 if quick else seeds
     for i, e in enumerate(EFFECT_NAMES):
-        out += [(100 * (i + 1) + s, (e,)) for s in range(1, n + 1)]
-    out += [(s, ()) for s in range(1, (1 if quick else 2 * seeds) + 1)]
+        out += [(100 * (i + 1) + s, (e,)) for s in range(first, first + n)]
+    c0 = 2 * first - 1
+    out += [(s, ()) for s in range(c0, c0 + (1 if quick else 2 * seeds))]
     if not quick:
         for i, pair in enumerate(PAIRS):
-            out += [(5000 + 100 * i + s, pair) for s in (1, 2)]
+            out += [(5000 + 100 * i + s, pair) for s in (c0, c0 + 1)]
     return out
 
 
@@ -277,17 +286,25 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed of every effect and clean")
     ap.add_argument("--seeds", type=int, default=5, help="seeds per effect (default 5)")
+    ap.add_argument("--first", type=int, default=1,
+                    help="each effect's first seed (default 1); later ones are a held-out draw")
     ap.add_argument("--jobs", type=int, default=2, help="campaigns identified at once")
     ap.add_argument("--no-peers", action="store_true", help="skip the peer baselines")
     ap.add_argument("--out", type=Path, help="write every row and the scores as JSON")
     ap.add_argument("--only", type=lambda s: {int(v) for v in s.split(",")}, default=None,
                     metavar="SEED,...", help="just these campaigns of the full set (by seed)")
     a = ap.parse_args(argv)
-    todo = campaigns(a.quick, a.seeds)
+    try:
+        todo = campaigns(a.quick, a.seeds, a.first)
+    except ValueError as e:
+        ap.error(str(e))
     if a.only is not None:
         todo = [(s, e) for s, e in todo if s in a.only]
         if not todo:
             ap.error(f"no campaign has seed {sorted(a.only)}; see campaigns() for the numbering")
+    if not a.no_peers and importlib.util.find_spec("pysindy") is None:
+        # checked before the campaigns, not after them: a missing peer must not cost a run
+        ap.error("the peers need PySINDy: pip install -e '.[bench]', or pass --no-peers")
     print(f"{len(todo)} campaigns from bench/unseen/generator.py, {a.jobs} at a time")
     # numba's one-time compile on a cold cache (~40 s) is no campaign's wall time
     warm_up(lambda m: print(f"{m} before the first campaign", flush=True))

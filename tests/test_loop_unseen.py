@@ -70,13 +70,23 @@ def test_a_clean_campaign_whose_joint_starts_miss_the_valley_is_fitted_from_a_ru
 
 
 @pytest.mark.parametrize("seed,effect", [(301, "hardening"), (305, "hardening"),
-                                         (901, "sensor_delay"), (1001, "sensor_gain"),
-                                         (403, "asym_stiffness")])
+                                         (307, "hardening"), (901, "sensor_delay"),
+                                         (1001, "sensor_gain"), (403, "asym_stiffness")])
 def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
     """Seed 305's hardening is 6.5 % of the peak force: equation error ranks a preload
     first (BIC fall 27 against the cubic's 24), output error refuses it (|t| 0.3), and
     the cubic is tried next by its own first-step fall (with the preload in the model it
     fell below the margin, and nothing was named: 4.2 x noise).
+
+    Seed 307's (26 %, 3.7 x the rig's noise; a draw the loop was not tuned on) is named
+    after a preload and a sensor gain. The preload's refit is refused, but its constants
+    with the preload taken out are a better base fit (12.15 -> 11.94 x noise: `judge`'s
+    valley check), and the step starts again from there, where equation error names the
+    preload alone: the cubic was never refitted, and the loop said "unexplained
+    structure" at 11.9 x. The names not yet refitted are carried to the better base
+    (`close._one_step`): 1.03 x, k3 4.50e6 against 4.73e6 N/m³ (k2 tanh(αz) is held
+    saturated at the dead band's edge, α 8080 1/m against 66, and k1, +5 %, and k3 take
+    up the tanh's bend).
 
     Seed 1001's sensor gain is 3.3 %: at the constants identification gave, equation
     error names it first (BIC fall 28); at the base refit's, whose dead band and stop
@@ -187,3 +197,4 @@ def test_a_friction_with_a_one_sided_damping_gets_its_dead_band_back_from_the_pr
     assert p["c3"]["value"] == pytest.approx(truth["coulomb"]["F_c"], rel=0.02)
     assert p["c_ext"]["value"] == pytest.approx(truth["asym_damping"]["c_a"], rel=0.02)
     assert p["k1"]["value"] == pytest.approx(c["k1"], rel=0.03)
+
