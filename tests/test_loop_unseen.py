@@ -88,7 +88,7 @@ def test_the_unseen_effect_is_named_and_nothing_else(seed, effect, tmp_path):
     N/m³ (k2 tanh(αz) is held saturated at the dead band's edge, α 8080 1/m against 66,
     and k1, +5 %, and k3 take up the tanh's bend); under Sandybridge 0.99 x, k3 4.73e6,
     where the sensor gain named on the way ends at zero in the final fit and is dropped
-    there (`close._at_zero`).
+    there (`prune.drop_at_zero`).
 
     Seed 1001's sensor gain is 3.3 %: at the constants identification gave, equation
     error names it first (BIC fall 28); at the base refit's, whose dead band and stop
@@ -161,8 +161,8 @@ def test_two_unseen_effects_are_named_together(tmp_path):
 def test_a_friction_that_stands_in_for_two_shape_constants_is_kept(tmp_path):
     """Seed 5001: a Coulomb friction (1.95 kN, built up over 5.4 mm/s) with a hardening
     spring, each 15 % of the peak force. Once the cubic is named, the friction is judged
-    again (`_backward`): its column is a look-alike of α at 1.000 and, α held, of ε at
-    1.000. Held one at a time, only α was held, and the friction was dropped at
+    again (`prune.drop_redundant`): its column is a look-alike of α at 1.000 and, α held,
+    of ε at 1.000. Held one at a time, only α was held, and the friction was dropped at
     12.4 x noise; each shape constant it stands in for is now held in turn
     (`judge.held_look_alikes`), and the friction stays."""
     doc = _fit(5001, ("coulomb", "hardening"), tmp_path)

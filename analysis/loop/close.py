@@ -58,12 +58,13 @@ from analysis.loop.candidate_fit import (
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.conditioning import candidate_collinearities
 from analysis.loop.evidence import Diagnosis, diagnose_fit
-from analysis.loop.judge import MIN_T, held_look_alikes, judge, own_parameters
+from analysis.loop.judge import judge
 from analysis.loop.naming import BIC_MARGIN, Naming, name_effects
 from analysis.loop.pair import pair_step
 from analysis.loop.polish import polished, restarted, step_candidates
+from analysis.loop.prune import drop_at_zero, drop_redundant
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
-from analysis.loop.result import LoopResult, Step
+from analysis.loop.result import LoopResult
 from analysis.loop.runs import LoopRun, loop_runs, run_errors
 from analysis.model.isolator import IsolatorModel
 
@@ -127,7 +128,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         fit = step[1]
         free = list(step[1].names)  # what the accepted fit freed (δ, a revived k2) stays free
     if len(steps) > 1:
-        fit, free, steps, dropped = _backward(fit, free, steps, data, progress)
+        fit, free, steps, dropped = drop_redundant(fit, free, steps, data, progress)
         refused.extend(dropped)
         if not steps and base.rss < fit.rss:
             # every effect dropped: the refit without them walked from their valley to a
@@ -139,7 +140,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # or a valley next to it?
         fit = restarted(fit, runs, step_candidates(fit, steps), progress, prior_h)
     if len(steps) > 1:
-        fit, steps, dropped = _at_zero(fit, steps, data, progress)
+        fit, steps, dropped = drop_at_zero(fit, steps, data, progress)
         refused.extend(dropped)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
@@ -159,57 +160,6 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
                       error_before=run_errors(base, runs), error_after=run_errors(fit, runs),
                       unexplained=unexplained, description=text, refused=tuple(refused),
                       conditioning=candidate_collinearities(fit, runs))
-
-
-def _backward(fit: Fit, free: list[str], steps: list[Step], data: Sequence[RunData],
-              progress: Callable[[str], None]):
-    """Each added effect judged again against the final model: one that a later effect
-    has made redundant is dropped (backward elimination after the forward steps).
-
-    Equation error names one effect at a time, and a first name can stand in for the
-    one named after it: a sensor gain was named before a thermal drift, and with the
-    drift in the model the gain cut nothing. Returns (fit, free, steps, refused).
-    """
-    steps, dropped = list(steps), []
-    for step in list(steps):
-        others = [n for n in free if n not in own_parameters(fit, step.parameter)]
-        progress(f"loop: is {step.added} still needed with the effects named after it?")
-        cands = {s.parameter: CANDIDATES[s.added] for s in steps}
-        without = refit_free(fit.hypothesis.with_values({step.parameter: 0.0}), data, others,
-                             {p: c for p, c in cands.items() if p != step.parameter})
-        # as on the way in (`judge`): each shape constant it stands in for held, judged
-        # again (a Coulomb friction beside a cubic spring, against ε at 0.997)
-        reason = ("the model without it fits as well" if without.rss <= fit.rss else
-                  held_look_alikes(without, fit, step.parameter, data, cands)[1])
-        if reason:
-            dropped.append({"candidate": step.added, "reason": "dropped once the effects "
-                            f"after it were in the model: {reason}"})
-            steps.remove(step)
-            fit, free = without, others
-    return fit, free, steps, dropped
-
-
-def _at_zero(fit: Fit, steps: list[Step], data: Sequence[RunData],
-             progress: Callable[[str], None]):
-    """Each added effect the final fit puts at zero (|t| < MIN_T, the test it passed on
-    the way in) dropped, the model refitted without it: the final fit's restarts move
-    every constant, and an effect judged needed before them can end at nothing. On a
-    hardening spring whose sensor gain was named before the cubic (unseen 307), the gain
-    ended at -1.8e-6 ± 1.5e-5 under one BLAS kernel and was reported beside the cubic;
-    under two others `_backward` had dropped it. Returns (fit, steps, refused)."""
-    steps, dropped = list(steps), []
-    for step in list(steps):
-        value, std = fit.param(step.parameter)
-        if std > 0 and abs(value) >= MIN_T * std:
-            continue
-        progress(f"loop: {step.added} is at zero in the final fit: refitting without it")
-        steps.remove(step)
-        others = [n for n in fit.names if n not in own_parameters(fit, step.parameter)]
-        fit = refit_free(fit.hypothesis.with_values({step.parameter: 0.0}), data, others,
-                         {s.parameter: CANDIDATES[s.added] for s in steps})
-        dropped.append({"candidate": step.added, "reason": f"dropped: the final fit puts it "
-                        f"at {value:.3g} ± {std:.2g} (|t| < {MIN_T:g})"})
-    return fit, steps, dropped
 
 
 def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
