@@ -11,6 +11,7 @@ coefficient, so only α and β come from the start.
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -152,6 +153,22 @@ def test_the_weak_name_is_the_largest_first_fall_and_only_a_fall():
     assert Naming((), (), {"b": 2.0, "a": 2.0}, 0.0, 10).weak() == ("b",)
     assert Naming((), (), {"preload": -0.6, "sensor_gain": -1.4}, 0.015, 339).weak() == ()
     assert Naming((), (), {}, 0.0, 0).weak() == ()
+
+
+def test_the_other_views_first_name_is_tried_before_the_runners_up():
+    """The first names at the base refit's constants and at the identified ones differ
+    (unseen seed 411): the larger fall's is refitted first, the other's next, then the
+    runners-up above the margin by their falls; a name is tried once."""
+    first = {"preload": 63.6, "cubic_stiffness": 21.3, "asymmetric_stiffness": 11.1,
+             "hysteresis": 5.6}
+    plain = Naming(("preload",), (63.6,), first, 0.02, 400)
+    assert plain.to_try() == ("preload", "cubic_stiffness", "asymmetric_stiffness")
+    both = replace(plain, other_first=("asymmetric_stiffness",))
+    assert both.to_try() == ("preload", "asymmetric_stiffness", "cubic_stiffness")
+    # below the margin at this view, the other's first name is still tried
+    assert replace(plain, other_first=("hysteresis",)).to_try() == (
+        "preload", "hysteresis", "cubic_stiffness", "asymmetric_stiffness")
+    assert replace(plain, other_first=("preload",)).to_try() == plain.to_try()
 
 
 def test_columns_closed_from_the_open_band_are_the_regressors_at_each_band():

@@ -64,6 +64,9 @@ class Naming:
     # the shape each candidate with shapes to choose was selected at (`Candidate.shapes`), or,
     # not selected, its best at the first step; absent at the library's own shape
     shapes: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # the first name equation error gave at other constants of the same model, where it
+    # differs from this one's (`close._name`): refitted next, should the top be refused
+    other_first: tuple[str, ...] = ()
 
     @property
     def top_gain(self) -> float:
@@ -71,13 +74,15 @@ class Naming:
         return self.gains[0] if self.gains else -np.inf
 
     def to_try(self) -> tuple[str, ...]:
-        """The top name, then, should it be refused, the others above the margin in the
-        order of their first step's BIC falls: the forward order after the top holds
-        only with the top in the model (a hardening spring's cubic, 3 behind a preload
-        at the first step, fell below the margin with the preload in)."""
+        """The top name, then, should it be refused, the first name at the other
+        constants (`other_first`), then the others above the margin in the order of
+        their first step's BIC falls: the forward order after the top holds only with
+        the top in the model (a hardening spring's cubic, 3 behind a preload at the
+        first step, fell below the margin with the preload in)."""
+        ahead = self.order[:1] + self.other_first
         rest = sorted((n for n, f in self.first.items() if f > BIC_MARGIN
-                       and n not in self.order[:1]), key=lambda n: (-self.first[n], n))
-        return self.order[:1] + tuple(rest)
+                       and n not in ahead), key=lambda n: (-self.first[n], n))
+        return tuple(dict.fromkeys(ahead)) + tuple(rest)
 
     def weak(self) -> tuple[str, ...]:
         """The candidate whose column lowered BIC most at the first step, where it lowered
