@@ -116,18 +116,23 @@ def test_effect_changes_the_data(clean):
     assert rms > 5 * clean.noise, (rms, clean.noise)
 
 
-def test_a_mass_held_stuck_never_takes_more_than_the_breakaway_force():
+@pytest.mark.parametrize("seed, effects", [(5201, ("sensor_delay", "preload")),
+                                           (810, ("bouc_wen",))])
+def test_a_mass_held_stuck_never_takes_more_than_the_breakaway_force(seed, effects):
     """Wherever the generator holds the mass to the table (z' exactly 0), the force the
     table supplies to hold it is within the breakaway force. Seed 5201's preload beside
     a sensor delay stuck the mass just outside the dead band as run C's return ramp
     began, for 26 us before the force left the window through its other side; the
     breakaway event, looked for only where the solver's first 0.5 ms step ended, was
-    missed, and the mass rode the whole ramp held at 160 kN against a 114 N breakaway."""
+    missed, and the mass rode the whole ramp held at 160 kN against a 114 N breakaway.
+    Seed 810's Bouc-Wen loop stuck the mass with its force a rounding error past the
+    75 N breakaway: the breakaway event began positive, never crossed zero, and the mass
+    rode run C's second pulse held to the table."""
     from bench.unseen.integrate import simulate
     from bench.unseen.motion import Profile
     from bench.unseen.plant import Plant
 
-    c = gen.make_campaign(5201, ("sensor_delay", "preload"))
+    c = gen.make_campaign(seed, effects)
     k, fb, delta = c.constants, c.constants["F_b"], c.constants["delta"]
     effects = {e["name"]: e for e in c.effects}
     plant = Plant(k, effects, Profile(c.meta["shape"], RAMPS["C"]))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from bench.unseen.plant import Plant
+from bench.unseen.plant import BREAKAWAY_MARGIN, Plant
 
 
 @dataclass
@@ -63,7 +63,7 @@ def simulate(plant: Plant, t_end: float, max_events: int = 20000,
             # at the start of a stuck segment: does the mass break away at once? (with a
             # small margin: a stick event leaves the force at the threshold to rounding)
             a, b = plant.hold_interval(t, y, edge, inside)
-            fb = k["F_b"] * (1.0 + 1e-7)
+            fb = k["F_b"] * (1.0 + BREAKAWAY_MARGIN)
             if a > fb or b < -fb:
                 stuck, inside = False, _region_after_breakaway(y[0], edge, inside, a > fb)
                 edge, no_stick_until = 0, t + dwell
