@@ -68,7 +68,9 @@ def simulate(plant: Plant, t_end: float, max_events: int = 20000,
                 stuck, inside = False, _region_after_breakaway(y[0], edge, inside, a > fb)
                 edge, no_stick_until = 0, t + dwell
                 continue
-            fun, events = plant.rhs_stuck(), [plant.ev_breakaway(edge, inside)]
+            on = max(a, -b) >= k["F_b"]  # left on or past F_b by the stick event
+            fun = plant.rhs_stuck()
+            events = [plant.ev_breakaway(edge, inside, BREAKAWAY_MARGIN if on else 0.0)]
             # A hold force on the breakaway threshold (where a stick event found the force,
             # rather than the velocity, coming into the window) may leave the window
             # [-F_b, F_b] through its other side within microseconds, as the table's

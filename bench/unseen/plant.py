@@ -27,9 +27,9 @@ from bench.unseen import effects as _effects
 from bench.unseen.motion import Profile
 
 MASS = 2721.55  # kg (6000 lb)
-# A held mass breaks away past F_b (1 + BREAKAWAY_MARGIN): a stick event leaves the hold
-# force on F_b to rounding, on either side of it, and the breakaway event must start
-# below its threshold to see the force cross it
+# A stick event leaves the hold force on F_b to rounding, on either side of it: a held
+# mass breaks away at once only past F_b (1 + BREAKAWAY_MARGIN), and the breakaway event
+# looks for that threshold where the force starts on or past F_b itself
 BREAKAWAY_MARGIN = 1e-7
 
 
@@ -134,12 +134,14 @@ class Plant:
         g.direction = -1.0
         return g
 
-    def ev_breakaway(self, edge: int, inside: bool):
-        # the margin: a hold force left a rounding error above F_b by the stick event, as
-        # a Bouc-Wen loop's force settles onto the threshold, made this event positive from
-        # the start, and it never crossed: seed 810's mass rode run C's whole second pulse
-        # held to the table against a 75 N breakaway
-        fb = self.k["F_b"] * (1.0 + BREAKAWAY_MARGIN)
+    def ev_breakaway(self, edge: int, inside: bool, margin: float = 0.0):
+        """The hold force rising through F_b (1 + margin). The margin where the force
+        starts on or past F_b: a rounding error above it, left by the stick event as a
+        Bouc-Wen loop's force settled onto the threshold, made the event positive from the
+        start, it never crossed, and seed 810's mass rode run C's whole second pulse held
+        to the table against a 75 N breakaway. Elsewhere none, so that every other
+        campaign is integrated as before to the bit."""
+        fb = self.k["F_b"] * (1.0 + margin)
 
         def g(t, y):
             a, b = self.hold_interval(t, y, edge, inside)
