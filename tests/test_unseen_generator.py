@@ -134,8 +134,8 @@ def test_a_mass_held_stuck_never_takes_more_than_the_breakaway_force(seed, effec
 
     c = gen.make_campaign(seed, effects)
     k, fb, delta = c.constants, c.constants["F_b"], c.constants["delta"]
-    effects = {e["name"]: e for e in c.effects}
-    plant = Plant(k, effects, Profile(c.meta["shape"], RAMPS["C"]))
+    drawn = {e["name"]: e for e in c.effects}
+    plant = Plant(k, drawn, Profile(c.meta["shape"], RAMPS["C"]))
     t = np.arange(round(c.meta["length"] * gen.FS)) / gen.FS
     y = simulate(plant, c.meta["length"])(t)
     held = np.flatnonzero(y[1] == 0.0)
