@@ -50,7 +50,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from analysis.identify.run_data import RunData
-from analysis.loop.candidate_fit import BASE_FREE, NOISE_LEVEL, STOP, constants_from
+from analysis.loop.candidate_fit import (
+    ALPHA_MOVES,
+    BASE_FREE,
+    NOISE_LEVEL,
+    STOP,
+    constants_from,
+)
 from analysis.loop.candidates import (
     CANDIDATES,
     FRICTION_BUILD_UP_MIN,
@@ -65,7 +71,6 @@ FINER_STEPS = (1e-3, 3e-4, 1e-4)  # of each scaled constant, after the refit's 3
 AGAIN = 3  # fresh trust regions per step size, from where the last one stopped
 GAIN = 0.995  # a refit is kept, and another tried, if it cut the residual by 0.5 %
 EXPONENT_BETWEEN = 1.5  # Bouc–Wen n started here too: between the library's 1 and 2
-ALPHA_MOVES = (0.25, 4.0)  # α of the final fit times these: the restarts' other springs
 
 
 def polished(fit: Fit, data: Sequence[RunData], candidates: dict[str, Candidate],
