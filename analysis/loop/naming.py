@@ -67,6 +67,9 @@ class Naming:
     # the first name equation error gave at other constants of the same model, where it
     # differs from this one's (`close._name`): refitted next, should the top be refused
     other_first: tuple[str, ...] = ()
+    # the names above the margin at those other constants that this view does not rank
+    # there: tried after this view's own (`close._name`)
+    other_runners: tuple[str, ...] = ()
 
     @property
     def top_gain(self) -> float:
@@ -78,11 +81,12 @@ class Naming:
         constants (`other_first`), then the others above the margin in the order of
         their first step's BIC falls: the forward order after the top holds only with
         the top in the model (a hardening spring's cubic, 3 behind a preload at the
-        first step, fell below the margin with the preload in)."""
+        first step, fell below the margin with the preload in); last the names only
+        the other constants rank (`other_runners`)."""
         ahead = self.order[:1] + self.other_first
         rest = sorted((n for n, f in self.first.items() if f > BIC_MARGIN
                        and n not in ahead), key=lambda n: (-self.first[n], n))
-        return tuple(dict.fromkeys(ahead)) + tuple(rest)
+        return tuple(dict.fromkeys(ahead + tuple(rest) + self.other_runners))
 
     def weak(self) -> tuple[str, ...]:
         """The candidate whose column lowered BIC most at the first step, where it lowered
