@@ -146,7 +146,9 @@ def candidate_refit(fit: Fit, free: list[str], runs: Sequence[LoopRun], s: Score
     sizes = _starts(cand_h, data, s, c)
     entries += [(cand_h.with_values({s.name: v}), names) for v in sizes]
     if again is None and not c.term_kind:  # a sensor's lag: nothing identified it again
-        entries += [(h0, names) for h0 in _alpha_moved_starts(cand_h, s.name, sizes, names)]
+        # α elsewhere, the candidate at each size (`alpha_moved` says why)
+        entries += [(h0.with_values({s.name: v}), names) for v in sizes
+                    for h0 in alpha_moved(cand_h, names)]
     entries += [(h0, names) for h0 in _split_starts(cand_h, s.name, c)]
     best = min(fits + [race(entries, runs, {s.name: c})], key=lambda f: f.rss)
     if shaped is not None and shaped[-1].rss < best.rss:
@@ -311,21 +313,21 @@ def race(entries: Sequence[tuple[Hypothesis, list[str]]], runs: Sequence[LoopRun
     return min(bounded, key=lambda f: f.rss) if bounded else short[best]
 
 
-def _alpha_moved_starts(h: Hypothesis, name: str, sizes: Sequence[float],
-                        names: Sequence[str]) -> list[Hypothesis]:
-    """Starts with α a quarter and four times the base fit's, the candidate at each size.
+def alpha_moved(h: Hypothesis, free: Sequence[str]) -> list[Hypothesis]:
+    """`h` with α a quarter and four times its own (`ALPHA_MOVES`), where α is among the
+    `free` constants and k2 tanh(αz) acts: another spring's valley.
 
     A force candidate gets a start identified again with α searched (`reidentify`); a
     sensor's lag has no regressor there, and every other start keeps the α the base fit
     bent to mimic it. Unseen sensor delay 912 (2.2 ms, noise 2.8 times the rig's): the
     base fit's α 34 1/m against the generator's 56, the delay refitted from there
     stayed at 1.79–6.3 x noise wherever it started, from α 70 or 140 it reached 0.99 x
-    (the generator's 2.18 ms to 0.1 %).
+    (the generator's 2.18 ms to 0.1 %). The final fit's restarts move it so too
+    (`polish`).
     """
-    if "alpha" not in names or h.value("k2") == 0.0:
+    if "alpha" not in free or h.model.parameters().get("k2", 0.0) == 0.0:
         return []
-    alpha = h.value("alpha")
-    return [h.with_values({name: v, "alpha": f * alpha}) for v in sizes for f in ALPHA_MOVES]
+    return [h.with_values({"alpha": f * h.value("alpha")}) for f in ALPHA_MOVES]
 
 
 SPLIT = (0.3, 0.6, 0.9)  # fractions of the look-alike coefficient's force handed over

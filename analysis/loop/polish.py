@@ -51,10 +51,10 @@ from collections.abc import Callable, Sequence
 
 from analysis.identify.run_data import RunData
 from analysis.loop.candidate_fit import (
-    ALPHA_MOVES,
     BASE_FREE,
     NOISE_LEVEL,
     STOP,
+    alpha_moved,
     constants_from,
 )
 from analysis.loop.candidates import (
@@ -169,16 +169,14 @@ def _exponent_freed(h: Hypothesis, candidates: dict[str, Candidate]):
 
 
 def _alpha_moved(fit: Fit):
-    """α a quarter and four times the fit's, where the fit frees it: a held α moved and
-    kept there would be a constant nobody fitted. Freed from there instead, it does not
-    fit either: asymmetric damping + Coulomb 5501 (α held at the base fit's 150 1/m, k2
-    held at 286 N) ended at 2.55 x noise with α at its start of 600 1/m to eight digits
-    and a "standard error" of 6e-9 of it, which no smooth cost gives; held, 2.64 x."""
-    p = fit.hypothesis.model.parameters()
-    if "alpha" not in fit.names or p.get("k2", 0.0) == 0.0:
-        return
-    for f in ALPHA_MOVES:
-        yield fit.hypothesis.with_values({"alpha": f * p["alpha"]}), [], {}
+    """α a quarter and four times the fit's, where the fit frees it
+    (`candidate_fit.alpha_moved`): a held α moved and kept there would be a constant
+    nobody fitted. Freed from there instead, it does not fit either: asymmetric damping
+    + Coulomb 5501 (α held at the base fit's 150 1/m, k2 held at 286 N) ended at 2.55 x
+    noise with α at its start of 600 1/m to eight digits and a "standard error" of 6e-9
+    of it, which no smooth cost gives; held, 2.64 x."""
+    for h0 in alpha_moved(fit.hypothesis, fit.names):
+        yield h0, [], {}
 
 
 def _from_prior(fit: Fit, prior: Hypothesis | None):
