@@ -223,3 +223,79 @@ def test_the_matched_filter_at_the_kept_rows_is_the_full_convolution_there():
     # and not trivially: a window one row off is far from it
     off = x[_windows(rows + 1, x.size, H.size)] @ H
     assert not np.allclose(off, want, rtol=0.0, atol=1e-6 * np.max(np.abs(want)))
+
+
+def test_a_sign_physics_fixes_is_kept_at_the_least_squares_optimum():
+    """Equation error keeps k2, c2 and a signed candidate's force coefficient on the side
+    output error fits them (the target is m ẍ = −F, so a force coefficient ≥ 0 is a
+    column coefficient ≤ 0). Where the free solution breaks a sign, the result must be
+    the constrained optimum: checked against every active set (the optimum of a convex
+    quadratic with sign bounds is the free solution on some subset of the columns, and
+    the best feasible one of those), on columns that span decades as z and z³ do."""
+    import itertools
+
+    import numpy as np
+
+    from analysis.loop.naming import force_sign, signed_least_squares
+
+    rng = np.random.default_rng(7)
+    z = np.linspace(-0.15, 0.15, 300)
+    A = np.column_stack([z, np.tanh(12.0 * z), z ** 3, np.sign(z), rng.normal(size=300)])
+    # a hardening spring; k2 tanh(αz) can mimic it only with k2 < 0
+    y = -(8.0e4 * z + 3.0e6 * z ** 3) + 50.0 * rng.normal(size=300)
+    signs = [0, +1, 0, +1, 0]
+    free = np.linalg.lstsq(A[:, [0, 1, 3, 4]], y, rcond=None)[0]
+    assert free[1] > 0.0  # the free fit bends k2 negative (column coefficient > 0)
+
+    def brute(cols):
+        best = (np.inf, None)
+        held = [j for j in cols if signs[j]]
+        for k in range(len(held) + 1):
+            for zero in itertools.combinations(held, k):
+                keep = [j for j in cols if j not in zero]
+                c = np.zeros(A.shape[1])
+                c[keep] = np.linalg.lstsq(A[:, keep], y, rcond=None)[0]
+                if all(c[j] * signs[j] <= 0.0 for j in held):
+                    rss = float(np.sum((y - A @ c) ** 2))
+                    best = min(best, (rss, tuple(c)), key=lambda b: b[0])
+        return np.array(best[1])
+
+    for cols in ([0, 1, 3, 4], [0, 1, 2, 3, 4]):
+        got = np.zeros(A.shape[1])
+        got[cols] = signed_least_squares(A[:, cols], y, [signs[j] for j in cols])
+        want = brute(cols)
+        assert all(got[j] * signs[j] <= 0.0 for j in cols)
+        assert np.sum((y - A @ got) ** 2) == pytest.approx(np.sum((y - A @ want) ** 2),
+                                                           rel=1e-8)
+        assert np.allclose(got, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
+    # with the cubic's column, the spring keeps its sign freely: the free solution
+    full = signed_least_squares(A, y, signs)
+    assert np.allclose(full, np.linalg.lstsq(A, y, rcond=None)[0])
+    assert full[2] == pytest.approx(-3.0e6, rel=0.05)
+    # which columns are signed: Eq 10's softening terms and the candidates physics signs
+    assert [force_sign(k) for k in ("base:k1", "base:k2", "base:c2", "cand:preload",
+                                    "cand:thermal_damping_drift@2", "cand:cubic_stiffness")
+            ] == [0, +1, +1, +1, -1, 0]
+
+
+def test_at_a_tie_between_shapes_the_one_a_refit_frees_is_named():
+    """Within SHAPE_TIE of each other, equation error cannot choose an effect's shape, and
+    rounding would (unseen Coulomb + hardening 5002: the step 131.4, 6 mm/s 130.9; which
+    was taken, and whether anything was named after, followed the BLAS kernel). The one a
+    refit frees is taken: from 6 mm/s output error can walk toward the step, not back.
+    Outside the tie, or for an effect without shapes, the best stays."""
+    from analysis.loop.naming import SHAPE_TIE, _freed_at_tie
+
+    falls = {"coulomb_friction": 131.4, "coulomb_friction@1": 129.8,
+             "coulomb_friction@2": 130.9, "cubic_stiffness": 7.3}
+    assert _freed_at_tie("coulomb_friction", falls) == "coulomb_friction@2"
+    # the built-up shapes' own order decides between them
+    assert _freed_at_tie("coulomb_friction", {**falls, "coulomb_friction@1": 131.0}) \
+        == "coulomb_friction@1"
+    apart = {**falls, "coulomb_friction@1": 131.4 - SHAPE_TIE - 0.1,
+             "coulomb_friction@2": 131.4 - SHAPE_TIE - 0.1}
+    assert _freed_at_tie("coulomb_friction", apart) == "coulomb_friction"
+    # a shape already chosen, and an effect with none to choose, are left as they are
+    assert _freed_at_tie("coulomb_friction@1", falls) == "coulomb_friction@1"
+    assert _freed_at_tie("cubic_stiffness", {**falls, "cubic_stiffness": 140.0}) \
+        == "cubic_stiffness"
