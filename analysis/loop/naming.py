@@ -28,7 +28,7 @@ output error only what this names, in its order.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -137,7 +137,7 @@ def name_effects(model: IsolatorModel, runs: Sequence[RunData], sensor_delay: fl
                 if falls[c] > first.get(_name(c), -np.inf):
                     first[_name(c)] = falls[c]
                     first_shape[_name(c)] = variants[c].shape
-        best = _freed_at_tie(max(falls, key=lambda c: (falls[c], c)), falls)
+        best = _freed_at_tie(_top(falls, falls), falls)
         if falls[best] <= BIC_MARGIN:
             break
         chosen.append(best)
@@ -160,7 +160,12 @@ def _freed_at_tie(best: str, falls: dict[str, float]) -> str:
         return best
     near = [c for c in falls if _name(c) == best and c != best
             and falls[c] >= falls[best] - SHAPE_TIE]
-    return max(near, key=lambda c: (falls[c], c)) if near else best
+    return _top(near, falls) if near else best
+
+
+def _top(labels: Iterable[str], falls: dict[str, float]) -> str:
+    """The label of `labels` with the largest fall; ties by name: deterministic."""
+    return max(labels, key=lambda c: (falls[c], c))
 
 
 def _variants(names: Sequence[str], samples: _Samples) -> dict[str, Candidate]:
@@ -236,7 +241,9 @@ def _best_bic(cols: _Columns, names: list[str], n: int, signed: bool = True
     fixed_names = [k for k in names if k in cols.fixed]
     fixed = np.column_stack([cols.fixed[k] for k in fixed_names] or [np.zeros(n)])
     gated = [k for k in names if k in cols.gated]
-    signs = [force_sign(k) if signed else 0 for k in (fixed_names or [""]) + gated]
+    sign = force_sign if signed else (lambda k: 0)
+    # the zero column that stands in for no fixed one is free
+    signs = ([sign(k) for k in fixed_names] or [0]) + [sign(k) for k in gated]
     p = len(names) + 1 + sum("@" in k for k in names)  # the coefficients, δ, chosen shapes
     best = (np.inf, 0.0)
     for i, d in enumerate(cols.deltas):
@@ -276,7 +283,7 @@ def signed_least_squares(A: np.ndarray, y: np.ndarray, signs: Sequence[int]) -> 
         return coef
     norm = np.linalg.norm(A, axis=0)
     norm[norm == 0.0] = 1.0
-    lower = np.where(sg > 0, -np.inf, np.where(sg < 0, 0.0, -np.inf))
+    lower = np.where(sg < 0, 0.0, -np.inf)
     upper = np.where(sg > 0, 0.0, np.inf)
     return lsq_linear(A / norm, y, bounds=(lower, upper), method="bvls").x / norm
 
