@@ -164,26 +164,17 @@ def test_a_friction_whose_fit_swapped_it_with_eq_10s_tanh_damper_is_exchanged_ba
     0.016), at 3.84 x noise ("unexplained structure"). Started with the two exchanged
     and δ, ε from the prior (`polish._roles_exchanged`), the final fit reaches the
     noise with the generator's friction and c2 tanh(βż): 1.01 x, 1747 N against 1748,
-    β 64.6 against 64.9 s/m. With numpy's baseline kernels (`rig/__init__.py`) the
-    loop ends beside that valley, at 1.07 x: each size in its own term (the friction
-    1770 N, c2 2303 N against 2324) but the two build-ups exchanged, 1/β 7.8 mm/s and
-    v_s 16 mm/s against the generator's 15.4 and 5.6 (outside the dead band, where
-    both act, the two are one force; only the friction acts inside it)."""
+    β 64.6 against 64.9 s/m. Under SkylakeX and Sandybridge the loop takes another
+    path (a better base fit, then the friction as a step) to 1.12 x, 1721 N, β 62.7."""
     doc = _fit(105, ("coulomb",), tmp_path)
     assert doc["effects_added"] == ["coulomb_friction"]
     assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01-1.12
     assert doc["unexplained"]["value"] is False
     truth = gen.make_campaign(105, ("coulomb",))
     p = doc["parameters"]
-    # the swapped valley had the friction at 1.29 kN (-26 %) and c2 sharp
-    assert p["c3"]["value"] == pytest.approx(truth.effects[0]["F_c"], rel=0.05)  # +1.3 %
-    assert p["c2"]["value"] == pytest.approx(truth.constants["c2"], rel=0.05)  # -0.9 %
-    # the build-ups as a pair (sharper, smoother): 1/β and v_s each either way round;
-    # the swapped valley's were 0.05 and 35 mm/s
-    fitted = sorted([1.0 / p["beta"]["value"], p["c3.v_s"]["value"]])
-    generated = sorted([1.0 / truth.constants["beta"], truth.effects[0]["v_s"]])
-    for f, g in zip(fitted, generated):
-        assert g / 1.5 < f < 1.5 * g  # measured 1.39 and 1.05 of the generator's
+    # the swapped valley had the friction at 1.29 kN (-26 %) and β at 21 000 s/m
+    assert p["c3"]["value"] == pytest.approx(truth.effects[0]["F_c"], rel=0.05)  # -0.05, -1.5 %
+    assert p["beta"]["value"] == pytest.approx(truth.constants["beta"], rel=0.1)  # -0.4, -3.3 %
 
 
 def test_a_one_sided_damping_whose_refit_kept_a_wrong_alpha_is_started_again(tmp_path):
