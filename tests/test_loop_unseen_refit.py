@@ -107,10 +107,12 @@ def test_a_friction_built_up_over_its_own_velocity_is_refitted_with_it(tmp_path)
     step it stopped at 5.40 x noise; started at the library's other shapes with v_s
     free, it ends near the noise with the generator's size and build-up velocity (the
     generator's constants in the library's terms fit at 1.01 x; the rest is the base
-    fit's valley of α and δ)."""
+    fit's valley of α and δ). Its held-out check is the one where a single fold's refit
+    ended in a valley of its own (run C 9.85 -> 14.80 x noise, A and B at 1.2): judged
+    run by run (`validation._verdict`), the friction is kept."""
     doc = _fit(101, ("coulomb",), tmp_path)
     assert doc["effects_added"] == ["coulomb_friction"]
-    assert doc["residual_after"]["residual_over_noise"] < 2.0  # measured 1.38
+    assert doc["residual_after"]["residual_over_noise"] < 2.0  # measured 1.11
     e = gen.make_campaign(101, ("coulomb",)).effects[0]
     p = doc["parameters"]
     assert p["c3"]["value"] == pytest.approx(e["F_c"], rel=0.1)  # 4001 N against 4080
@@ -164,8 +166,11 @@ def test_a_friction_whose_fit_swapped_it_with_eq_10s_tanh_damper_is_exchanged_ba
     0.016), at 3.84 x noise ("unexplained structure"). Started with the two exchanged
     and δ, ε from the prior (`polish._roles_exchanged`), the final fit reaches the
     noise with the generator's friction and c2 tanh(βż): 1.01 x, 1747 N against 1748,
-    β 64.6 against 64.9 s/m. Under SkylakeX and Sandybridge the loop takes another
-    path (a better base fit, then the friction as a step) to 1.12 x, 1721 N, β 62.7."""
+    β 64.6 against 64.9 s/m. With numpy's baseline kernels (`rig/__init__.py`) the
+    loop ended beside that valley at 1.07 x, each size in its own term but the two
+    build-ups exchanged (1/β 7.8 mm/s, v_s 16 against 15.4 and 5.6): below the level
+    of "unexplained structure", and restarted there too (`close_loop`), it is
+    exchanged back, 1.02 x, β 68.1."""
     doc = _fit(105, ("coulomb",), tmp_path)
     assert doc["effects_added"] == ["coulomb_friction"]
     assert doc["residual_after"]["residual_over_noise"] < 1.3  # measured 1.01-1.12

@@ -53,9 +53,19 @@ def held_out(fit: Fit, cand: Fit, free: list[str], name: str, c: Candidate,
 
 
 def _verdict(base_ss: list[float], cand_ss: list[float]) -> tuple[bool, int]:
-    """Accepted when the held-out runs together fit better and at least half do."""
+    """Accepted when at least half the held-out runs fit better and their sums of
+    squares shrink by 1 % on geometric average: each run one vote, so that one fold's
+    refit ending in a valley of its own does not outweigh the others. Unseen seed 101
+    (a dry friction, 27 % of the peak force), with numpy's baseline kernels: runs A and
+    B left out went 7.50 -> 1.22 and 4.82 -> 1.21 x noise, run C 9.85 -> 14.80, and
+    the plain sum refused the friction: nothing named, 6.32 x noise left. Accepted, the
+    friction ends at 1.11 x with the generator's size (4137 N against 4080)."""
     better = sum(a < b for a, b in zip(cand_ss, base_ss))
-    return sum(cand_ss) < 0.99 * sum(base_ss) and better * 2 >= len(base_ss), better
+    ratio = np.mean(np.log(np.maximum(cand_ss, _TINY)) - np.log(np.maximum(base_ss, _TINY)))
+    return bool(ratio < np.log(0.99)) and better * 2 >= len(base_ss), better
+
+
+_TINY = 1e-300  # a run predicted exactly (no noise) stays comparable
 
 
 def _loro_refit(fit: Fit, cand: Fit, free: list[str], name: str, c: Candidate,
