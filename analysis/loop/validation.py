@@ -59,7 +59,7 @@ def _verdict(base_ss: list[float], cand_ss: list[float]) -> tuple[bool, int]:
     (a dry friction, 27 % of the peak force), with numpy's baseline kernels: runs A and
     B left out went 7.50 -> 1.22 and 4.82 -> 1.21 x noise, run C 9.85 -> 14.80, and
     the plain sum refused the friction: nothing named, 6.32 x noise left. Accepted, the
-    friction ends at 1.11 x with the generator's size (4137 N against 4080)."""
+    friction ends at 1.02 x with the generator's size (4094 N against 4080)."""
     better = sum(a < b for a, b in zip(cand_ss, base_ss))
     ratio = np.mean(np.log(np.maximum(cand_ss, _TINY)) - np.log(np.maximum(base_ss, _TINY)))
     return bool(ratio < np.log(0.99)) and better * 2 >= len(base_ss), better
