@@ -182,18 +182,31 @@ def test_a_friction_whose_fit_swapped_it_with_eq_10s_tanh_damper_is_exchanged_ba
     assert p["beta"]["value"] == pytest.approx(truth.constants["beta"], rel=0.1)  # -0.4, -3.3 %
 
 
-def test_a_one_sided_damping_whose_refit_kept_a_wrong_alpha_is_started_again(tmp_path):
+@pytest.mark.parametrize("seed", [505, 513])
+def test_a_one_sided_damping_is_named_alone_once_the_final_fit_is_started_again(
+        seed, tmp_path):
     """Seed 505: 1.45 kN s/m more damping in extension (11 % of the peak force). Named
     first and refitted, it stopped at 1.67 x noise with α at 70 1/m and β at 205 s/m
     (the generator's 92 and 79): the valley of the base fit's softening spring. Started
     again from a quarter and four times that α (`polish.restarted`), the final fit
     reaches the noise with the generator's one-sided damping (the generator's constants
-    in the library's terms, refitted, fit at 1.009 x)."""
-    doc = _fit(505, ("asym_damping",), tmp_path)
+    in the library's terms, refitted, fit at 1.009 x).
+
+    Seed 513: 3.63 kN s/m (26 % of the peak force; a draw the loop was not tuned on).
+    The base fit is 476 x noise and the one-sided damping's refit 170 x: a force offset
+    and a cubic spring are named after it (50 and 43 x), and the final fit's restarts
+    reach 1.06 x with the offset at 0.24 N and k3 at 3.0 kN/m³, each explaining 0.07
+    sensor-noise RMS of the motion. Judged again after the restarts
+    (`prune.drop_redundant`) both are dropped: 1.07 x, the damping 0.14 % from the
+    generator's.
+
+    5 %: the fit's 95 % intervals are 0.01-0.1 %, and a damping that shares its force with
+    another term moves by more."""
+    doc = _fit(seed, ("asym_damping",), tmp_path)
     assert doc["effects_added"] == ["asymmetric_damping"]
-    assert doc["residual_after"]["residual_over_noise"] < 1.2  # measured 1.01
+    assert doc["residual_after"]["residual_over_noise"] < 1.2  # measured 1.01 and 1.07
     assert doc["unexplained"]["value"] is False
-    e = gen.make_campaign(505, ("asym_damping",)).effects[0]
+    e = gen.make_campaign(seed, ("asym_damping",)).effects[0]
     assert doc["parameters"]["c_ext"]["value"] == pytest.approx(e["c_a"], rel=0.05)
 
 

@@ -32,7 +32,8 @@ Each step:
    from its constants, is ≥ 2 % below the current fit, the step is done again
    from that better fit before anything is named;
 7. with two or more added, judge each again against the final model (backward
-   elimination): an effect named early that a later one made redundant is dropped.
+   elimination): an effect named early that a later one made redundant is dropped;
+   and once more, a lone one too, after the final fit's restarts.
 
 When nothing passes but the residual is still well above the noise (1.3 x),
 the loop says "unexplained structure" and where it concentrates rather than
@@ -62,7 +63,7 @@ from analysis.loop.judge import judge
 from analysis.loop.naming import BIC_MARGIN, Naming, name_effects
 from analysis.loop.pair import pair_step
 from analysis.loop.polish import GAIN, polished, restarted, step_candidates
-from analysis.loop.prune import drop_at_zero, drop_redundant
+from analysis.loop.prune import drop_redundant
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free, score
 from analysis.loop.result import LoopResult
 from analysis.loop.runs import LoopRun, loop_runs, run_errors
@@ -154,9 +155,15 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         fit, lower = again, again.rss < GAIN * fit.rss
         if not lower:
             break
-    if len(steps) > 1:
-        fit, steps, dropped = drop_at_zero(fit, steps, data, progress)
+    if steps:
+        # each effect judged once more against the restarted fit, a lone one too: the
+        # restarts can reach, with the effect, the valley the model without it has
+        fit, free, steps, dropped = drop_redundant(fit, list(fit.names), steps, data,
+                                                   progress, "after the final fit's restarts",
+                                                   alike=False)
         refused.extend(dropped)
+        if not steps and base.rss < fit.rss:
+            fit, free = base, list(base.names)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
     steps = [replace(s, **dict(zip(("value", "std"), fit.param(s.parameter))))

@@ -117,14 +117,14 @@ def _rebase(fit: Fit, without: Fit, c: Candidate, reason: str = "") -> dict | No
 
 
 def held_look_alikes(before: Fit, after: Fit, name: str, data,
-                     candidates: dict[str, Candidate]) -> tuple[Fit, str]:
+                     candidates: dict[str, Candidate], alike: bool = True) -> tuple[Fit, str]:
     """`after` refitted with each shape constant of Eq 10 the effect is a look-alike of
     held in turn, and why it is refused then ("" where it passes).
 
     Holding one can show the next: an unseen friction beside a hardening spring was α's
     look-alike at 1.000 and, α held, ε's at 1.000, and was dropped with only α held.
     """
-    reason = why_refused(before, after, name)
+    reason = why_refused(before, after, name, alike=alike)
     while reason.startswith("a look-alike") and (shape := look_alike(after, name)[0]) \
             in SHAPE_CONSTANTS:
         after = refit_free(after.hypothesis, data,
