@@ -14,6 +14,7 @@ from analysis.identify.loading import load_runs
 from analysis.identify.pipeline import identify
 from analysis.identify.report_format import format_fit
 from analysis.loop import close_identified
+from analysis.loop.budget import LOOP_BUDGET
 from analysis.loop.report import fit_document, format_loop
 from analysis.simulate.compiled import warm_up
 from rig.cli_support import LENGTH_UNIT, add_units_argument
@@ -43,7 +44,19 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                    help="stop after variable projection (no output-error refinement, no loop)")
     p.add_argument("--no-loop", action="store_true",
                    help="skip closing the loop (searching the residual for missing effects)")
+    p.add_argument("--loop-budget", type=_billions, default=LOOP_BUDGET / 1e9,
+                   metavar="G",
+                   help="RK4 steps the loop's simulations may take, in billions, before it "
+                        "stops naming effects and restarting the final fit (default "
+                        f"{LOOP_BUDGET / 1e9:g}); the report says when it was spent")
     add_force_arguments(p)
+
+
+def _billions(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number of billions, not {text}")
+    return value
 
 
 def run_fit(args: argparse.Namespace) -> int:
@@ -68,7 +81,7 @@ def run_fit(args: argparse.Namespace) -> int:
     print(format_fit(fit))
     loop = None
     if not (args.no_loop or args.no_refine):
-        loop = close_identified(fit, progress)
+        loop = close_identified(fit, progress, int(args.loop_budget * 1e9))
         print()
         print(format_loop(loop, "us"))
     if args.json:

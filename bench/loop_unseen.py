@@ -67,6 +67,8 @@ TIMEOUT = 600.0  # s per campaign: past it the campaign counts as missed
 # the fit's progress lines (stderr) -> the stage that starts there; an indented line
 # that no pattern claims continues the stage before it ("  held …", "  F_break: …")
 PROGRESS = re.compile(r"^analysis fit \[\s*[\d.]+ s\] (.*)$")
+# the loop's work (`analysis.loop.budget`), said on its last progress line
+LOOP_WORK = re.compile(r"^loop: done in (\d+) M RK4 steps")
 STAGES = (
     (r"(differentiating|appendix A|variable projection)", "identification: equation error"),
     (r"output error: all runs|output error: the table channel", "identification: joint fit"),
@@ -165,7 +167,9 @@ def run_product(seed: int, effects: tuple[str, ...], work: Path) -> dict:
             # the effects the fit itself reports its runs cannot tell from its own terms
             "not_testable": [c["candidate"] for c in out.get("conditioning", [])
                              if c.get("indistinguishable")],
-            "stages": stage_seconds(lines, wall)}
+            "stages": stage_seconds(lines, wall),
+            "loop_rk4_steps_M": next((int(w.group(1)) for _, m in lines
+                                      if (w := LOOP_WORK.match(m))), None)}
 
 
 def run_peer(name: str, seed: int, effects: tuple[str, ...]) -> dict:
@@ -326,7 +330,10 @@ def main(argv: list[str] | None = None) -> int:
             rows["analysis fit"].append(r)
             print(f"[{k}/{len(todo)}] seed {seed} {'+'.join(eff) or 'clean'}: named "
                   f"{r['named'] or 'nothing'}, residual {r.get('residual_after') or 0:.2f} x "
-                  f"noise, {r['wall']:.1f} s" + (f" ({r['error']})" if "error" in r else ""),
+                  f"noise, {r['wall']:.1f} s"
+                  + (f", loop {r['loop_rk4_steps_M']} M RK4 steps"
+                     if r.get("loop_rk4_steps_M") is not None else "")
+                  + (f" ({r['error']})" if "error" in r else ""),
                   flush=True)
     if not a.no_peers:
         for peer in ("stepwise_bic", "sindy_gated"):

@@ -38,6 +38,10 @@ Each step:
 When nothing passes but the residual is still well above the noise (1.3 x),
 the loop says "unexplained structure" and where it concentrates rather than
 forcing an effect.
+
+Past its work budget (`budget`, the simulator's RK4 steps), the loop names no further effect
+and skips the final fit's polish and restarts, and says so: the first step is always
+taken, and every effect named is still judged again.
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from dataclasses import replace
 
 from analysis.identify.pipeline import IsolatorFit, start_model
 from analysis.identify.run_data import RunData
+from analysis.loop.budget import LOOP_BUDGET, Budget
 from analysis.loop.candidate_fit import (
     NOISE_LEVEL,
     STOP,
@@ -75,25 +80,33 @@ MAX_EFFECTS = 4
 RESTART_ROUNDS = 3  # the final fit's restarts, each from the last one's best
 
 
-def close_identified(fit: IsolatorFit, progress: Callable[[str], None] = lambda m: None
-                     ) -> LoopResult:
+def close_identified(fit: IsolatorFit, progress: Callable[[str], None] = lambda m: None,
+                     budget: int = LOOP_BUDGET) -> LoopResult:
     """The loop as `analysis fit` and a lot's units run it: on the runs as identification
     prepared them, from the identified model and from the report's average constants
     (identification's own start), which never saw the runs."""
     return close_loop(fit.model, loop_runs(fit), progress=progress,
-                      prior=start_model(fit.model.parameters()["m"]))
+                      prior=start_model(fit.model.parameters()["m"]), budget=budget)
 
 
 def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int = MAX_EFFECTS,
                progress: Callable[[str], None] = lambda m: None,
-               prior: IsolatorModel | None = None) -> LoopResult:
+               prior: IsolatorModel | None = None, budget: int = LOOP_BUDGET) -> LoopResult:
     """Refit `model` on the runs, then add effects from the library while the data ask.
 
     Each candidate is also refitted from `model`, and one with a state from `prior` too
     (`refit_from_start`): `model` identified from these runs has absorbed what an effect
-    does, `prior` never saw them (`close_identified`).
+    does, `prior` never saw them (`close_identified`). `budget`: RK4 steps the loop's
+    simulations may take before it stops searching (`budget`).
     """
     data = [r.data for r in runs]
+    work = Budget.starting_now(budget)
+    short: list[str] = []  # what the loop left undone once its budget was spent
+
+    def stop(what: str) -> None:
+        progress(f"loop: work budget spent ({work.used() / 1e9:.2f} G RK4 steps): "
+                 f"{what}")
+        short.append(what)
     start = Hypothesis(model)
     prior_h = Hypothesis(prior) if prior is not None else None
     # δ and ε free with the rest: a base fit that absorbed an effect moved them too (a
@@ -107,6 +120,9 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     while len(steps) < max_effects:
         diag = diagnose_fit(fit, runs)
         if diag.residual_over_noise <= NOISE_LEVEL and diag.white:
+            break
+        if (steps or rebased) and work.exhausted():
+            stop("no further effect tried")
             break
         # the first name is also sought at the constants identification gave (see
         # `_name`), and only the first may be equation error's weak one (`Naming.weak`):
@@ -129,15 +145,14 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         steps.extend(step[0])
         fit = step[1]
         free = list(step[1].names)  # what the accepted fit freed (δ, a revived k2) stays free
+    judged = None  # (fit, free) every effect was judged against and kept
     if len(steps) > 1:
-        fit, free, steps, dropped = drop_redundant(fit, free, steps, data, progress)
+        fit, free, steps, dropped = drop_redundant(fit, free, steps, data, progress,
+                                                   base=base)
         refused.extend(dropped)
-        if not steps and base.rss < fit.rss:
-            # every effect dropped: the refit without them walked from their valley to a
-            # worse one than the base fit's (an unseen Bouc–Wen loop: 43.7 x noise after
-            # against 24.0 before), and without an effect the model is the base fit
-            fit, free = base, list(base.names)
-    if fit.residual_over_noise > UNEXPLAINED_LEVEL:  # the solver's misfit, or the model's?
+        judged = None if dropped else (fit, list(free))
+    if fit.residual_over_noise > UNEXPLAINED_LEVEL and not work.exhausted():
+        # the solver's misfit, or the model's?
         fit = polished(fit, data, step_candidates(fit, steps), progress)
     # or a valley next to it? Looked for at any residual above the noise: valleys lie
     # close in residual and far apart in the constants, and which one a refit settles
@@ -149,21 +164,25 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     # 1.29 x noise, restarted 1.11 with ε at 94 mm/s against 14; again, 1.02, the
     # friction 4094 N against 4080 and its build-up 6.4 mm/s against 6.2)
     for _ in range(RESTART_ROUNDS):
-        if fit.residual_over_noise <= NOISE_LEVEL:
+        if fit.residual_over_noise <= NOISE_LEVEL or work.exhausted():
             break
-        again = restarted(fit, runs, step_candidates(fit, steps), progress, prior_h)
+        again = restarted(fit, runs, step_candidates(fit, steps), progress, prior_h,
+                          work.exhausted)
         fit, lower = again, again.rss < GAIN * fit.rss
         if not lower:
             break
-    if steps:
+    if fit.residual_over_noise > NOISE_LEVEL and work.exhausted():
+        stop("the final fit's search for a lower valley stopped")
+    if steps and not (judged and fit is judged[0] and list(fit.names) == judged[1]):
         # each effect judged once more against the restarted fit, a lone one too: the
-        # restarts can reach, with the effect, the valley the model without it has
+        # restarts can reach, with the effect, the valley the model without it has. Not
+        # again where neither polish nor restarts moved the fit every effect was just
+        # kept against: the same refits would repeat, and what passed with look-alikes
+        # refused passes without that check
         fit, free, steps, dropped = drop_redundant(fit, list(fit.names), steps, data,
                                                    progress, "after the final fit's restarts",
-                                                   alike=False)
+                                                   alike=False, base=base)
         refused.extend(dropped)
-        if not steps and base.rss < fit.rss:
-            fit, free = base, list(base.names)
     # each effect's size as the final model has it: a later step, or a better optimum
     # found after it, refits it too (a force offset named at 178.7 N ended at 181.1 N)
     steps = [replace(s, **dict(zip(("value", "std"), fit.param(s.parameter))))
@@ -177,6 +196,11 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
             f"any candidate; it concentrates at {final_diag.region_text}; "
             f"{final_diag.band_text}" if unexplained else
             f"residual {final_diag.residual_over_noise:.2f} x the sensor noise")
+    progress(f"loop: done in {work.used() / 1e6:.0f} M RK4 steps of its "
+             f"{work.steps / 1e9:g} G budget")
+    if short:
+        text += (f"; the loop's work budget ({work.steps / 1e9:g} G RK4 steps) was "
+                 f"spent: {', '.join(short)}")
     return LoopResult(base=base, final=fit, steps=tuple(steps),
                       diagnosis_before=diagnose_fit(base, runs), diagnosis_after=final_diag,
                       error_before=run_errors(base, runs), error_after=run_errors(fit, runs),

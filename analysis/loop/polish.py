@@ -107,14 +107,16 @@ def step_candidates(fit: Fit, steps: Sequence[Step]) -> dict[str, Candidate]:
 
 def restarted(fit: Fit, runs: Sequence[LoopRun], candidates: dict[str, Candidate],
               progress: Callable[[str], None] = lambda m: None,
-              prior: Hypothesis | None = None) -> Fit:
+              prior: Hypothesis | None = None,
+              enough: Callable[[], bool] = lambda: False) -> Fit:
     """The lowest of `fit` and refits of its free constants from starts near it: each
     added effect held at the library's own shape started at the library's other shapes
     with its shape constants freed, a hysteresis with its exponent freed too, α moved
     (`ALPHA_MOVES`) where the fit frees it, Eq 10's constants from `prior`
     (`_from_prior`), and last a dry friction and c2 tanh(βż) exchanged
-    (`_roles_exchanged`); the first at the noise ends the search. A refit whose lone
-    prediction of a run runs away is not kept."""
+    (`_roles_exchanged`); the first at the noise ends the search, and so does
+    `enough()` (the loop's budget spent). A refit whose lone prediction of a run runs
+    away is not kept."""
     starts = [*_other_shapes(fit.hypothesis, candidates),
               *_exponent_freed(fit.hypothesis, candidates), *_alpha_moved(fit),
               *_from_prior(fit, prior), *_roles_exchanged(fit, prior)]
@@ -129,7 +131,7 @@ def restarted(fit: Fit, runs: Sequence[LoopRun], candidates: dict[str, Candidate
                            {**candidates, **cands})
         if again.rss < best.rss and not diverging_runs(again, runs):
             best = again
-        if best.residual_over_noise <= NOISE_LEVEL:
+        if best.residual_over_noise <= NOISE_LEVEL or enough():
             break
     return best
 

@@ -31,6 +31,7 @@ from scipy.optimize import least_squares
 
 from analysis.identify.regressors import state_after
 from analysis.identify.run_data import RunData, start_state
+from analysis.loop.budget import spend
 from analysis.loop.candidates import (
     SENSOR_DELAY,
     SENSOR_GAIN,
@@ -121,6 +122,7 @@ def predict(h: Hypothesis, runs: Sequence[RunData], names: Sequence[str] = (),
                                dt=run.dt, t0=run.t[0], s0=S0[rows_z0], z0=z0, zd0=zd0)
             x[rows_z0] = b.z + b.u
             zd_all[rows_z0] = b.zd
+            spend(b.rk4_steps)
         out += _sensed([run], gain, delay, [x])
         for j, (heating, tau) in thermal:
             S0[:, j] = fluid_temperature_after(S0[:, j], zd_all, run.dt, heating, tau)
@@ -149,6 +151,7 @@ def _independent_runs(h: Hypothesis, runs: Sequence[RunData], V: np.ndarray, S0:
     x = [np.empty((V.shape[0], run.t.size)) for run in runs]
     for (k, chosen), b in zip(rows_of, simulate_runs(h.model, setups, vectors, s0=states)):
         x[k][chosen] = b.z + b.u
+        spend(b.rk4_steps)
     return x
 
 
@@ -196,6 +199,7 @@ def _settle(h: Hypothesis, V: np.ndarray, S0: np.ndarray, hysteretic, z_end: np.
     settled = simulate_runs(h.model, setups, [V[r:r + 1] for r in rows],
                             s0=[S0[r:r + 1] for r in rows])
     for r, b in zip(rows, settled):
+        spend(b.rk4_steps)
         for j, shape in hysteretic:
             S0[r, j] = hysteresis_after(S0[r:r + 1, j], b.zd, dt, shape)[0]
         z_rest[r] = b.z[0, -1]

@@ -158,6 +158,7 @@ class BatchResponse:
     z: np.ndarray
     zd: np.ndarray
     xdd: np.ndarray
+    rk4_steps: int = 0  # RK4 steps of every row, an event's trial steps included: the work
 
 
 @dataclass(frozen=True)
@@ -225,14 +226,16 @@ def simulate_runs(model: IsolatorModel, setups: Sequence[RunSetup],
     n_out = np.array([n for _, n in grids], np.int64)
     z, zd, xdd = (np.empty((len(jobs), n_out.max())) for _ in range(3))
     kinds, gated = model.structure()
+    steps = np.zeros(len(jobs), np.int64)
     simulate_jobs(kinds, gated, P_all, job_run, breaks, n_breaks, coefs,
                   np.array([g[0] for g in grids]), np.array([s.dt for s in setups]), n_out,
                   substeps, np.array([s.z0 for s in setups], float),
-                  np.array([s.zd0 for s in setups], float), S_all, z, zd, xdd)
+                  np.array([s.zd0 for s in setups], float), S_all, z, zd, xdd, steps)
     out = []
     for k, (s, (start, n)) in enumerate(zip(setups, grids)):
         rows = [j for j, (_, kk) in enumerate(jobs) if kk == k]
         t = start + s.dt * np.arange(n)
         out.append(BatchResponse(t=t, u=_held_on_grid(s.motion, t, s.dt), z=z[rows, :n],
-                                 zd=zd[rows, :n], xdd=xdd[rows, :n]))
+                                 zd=zd[rows, :n], xdd=xdd[rows, :n],
+                                 rk4_steps=int(steps[rows].sum())))
     return out

@@ -262,6 +262,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
     out_s (J, n_out): internal states; out_stuck (n_out,): 1 while stuck.
     These three are written only when out_stuck has room for the samples (a batch
     hands empty ones). work, scratch, events: a `workspace(J)`.
+    Returns the RK4 steps it took, an event's trial steps included.
     """
     # whether to record follows from the arrays, not from a flag: a literal False from
     # simulate_jobs and a bool from Python are two numba signatures, each compiled in full
@@ -310,6 +311,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
     land = nb > 1 and breaks[nb - 1] - breaks[0] > LAND_PIECE * h * (nb - 1)
     ib = 0  # the first break after t, where landing
     t = t0
+    steps = 0  # RK4 steps taken, trial steps of an event's location included: the work done
     recorded = False  # dy holds the rate at the last recorded sample (t_rec and modes)
     t_rec = t0
     zd_rec = 0.0
@@ -383,6 +385,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                         rhs(kinds, gated, p, breaks, coefs, t, y, stuck, outside, sz, szd, k1,
                             scratch)
                     recorded = False
+                    steps += 1
                     rk4_step(kinds, gated, p, breaks, coefs, t, y, hrem, stuck, outside, sz, szd,
                              y1, k1, k2, k3, k4, tmp, scratch, True)
                     event_values(kinds, gated, p, breaks, coefs, t + hrem, y1, stuck, outside,
@@ -416,6 +419,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                             th = (lo * ghi - hi * glo) / (ghi - glo)
                             if not (lo < th < hi):
                                 th = 0.5 * (lo + hi)
+                            steps += 1
                             rk4_step(kinds, gated, p, breaks, coefs, t, y, th * hrem, stuck,
                                      outside, sz, szd, ytry, k1, k2, k3, k4, tmp, scratch,
                                      True)
@@ -438,6 +442,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
                         theta_best = min(theta_best, hi)
                     # step to just past the event, then switch every mode whose event has fired
                     hs = theta_best * hrem
+                    steps += 1
                     rk4_step(kinds, gated, p, breaks, coefs, t, y, hs, stuck, outside, sz, szd,
                              ytry, k1, k2, k3, k4, tmp, scratch, True)
                     t = t + hs
@@ -487,6 +492,7 @@ def simulate_one(kinds, gated, p, breaks, coefs, t0, dt, n_out, substeps, z0, zd
         if record:
             record_sample(kinds, gated, p, breaks, coefs, t, y, k, out_zd[k], stuck, outside,
                           sz, szd, out_f, out_s, out_stuck, scratch)
+    return steps
 
 
 # a call, not inlined: inlined behind a flag known only at run time, this made every
@@ -511,7 +517,7 @@ def record_sample(kinds, gated, p, breaks, coefs, t, y, k, zd, stuck, outside, s
 
 @njit(cache=True, parallel=True)
 def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_out, substeps,
-                  z0, zd0, S0, out_z, out_zd, out_xdd):
+                  z0, zd0, S0, out_z, out_zd, out_xdd, out_steps):
     """simulate_one for each job in parallel: parameter row P[r] on run job_run[r].
 
     Runs differ in table motion (row m of `breaks` (M, B) and `coefs` (M, deg+1, B−1),
@@ -519,6 +525,7 @@ def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_o
     which Horner's rule carries as exact zeros), start time, step, length and
     start state. One call spreads every run's rows over the cores, where a
     batch per run leaves a core idle whenever its row count is odd.
+    out_steps[r]: the RK4 steps row r took (`simulate_one`).
     """
     nt = kinds.shape[0]
     for r in prange(P.shape[0]):
@@ -531,6 +538,7 @@ def simulate_jobs(kinds, gated, P, job_run, breaks, n_breaks, coefs, t0, dt, n_o
         # a strided view (numba's layout "A"), which `simulate` hands over too: another
         # layout would be another full compile of simulate_one, and a contiguous copy per
         # row made every simulation 8 % slower (a fresh mapping of its pages each time)
-        simulate_one(kinds, gated, P[r], breaks[m, :nb], coefs[m, :, :nb - 1], t0[m], dt[m],
-                     n_out[m], substeps, z0[m], zd0[m], S0[r], out_z[r], out_zd[r],
-                     out_xdd[r], f, s, st, work, scratch, events)
+        out_steps[r] = simulate_one(kinds, gated, P[r], breaks[m, :nb], coefs[m, :, :nb - 1],
+                                    t0[m], dt[m], n_out[m], substeps, z0[m], zd0[m], S0[r],
+                                    out_z[r], out_zd[r], out_xdd[r], f, s, st, work, scratch,
+                                    events)
