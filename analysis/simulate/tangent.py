@@ -97,7 +97,7 @@ NO_REFCOUNT = {"_nrt": False}  # as the kernel's calls: these allocate nothing
 # numba caches this module's code against this file alone, and kernel.py's and terms.py's
 # functions are compiled into it: their sources' hash (tests/test_tangent.py) is written
 # here, so that a change there changes this file too, or a cached tangent runs old code
-KERNEL_SOURCES = "fcce40d1b65d9f9a"
+KERNEL_SOURCES = "93daa95a2b091a31"
 
 
 @njit(cache=True, inline="always")
