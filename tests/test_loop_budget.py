@@ -42,7 +42,9 @@ def test_past_its_budget_the_loop_names_one_effect_and_says_why_it_stopped():
     """The campaign of `test_two_effects_at_once_are_both_named`: with both effects named
     the loop ends at the noise; with no budget left after the first, the second is not
     tried, the final fit is not restarted, the residual stays well above the noise, and
-    the description says the budget stopped it (not that nothing was left to find)."""
+    the description says the budget stopped it (not that nothing was left to find). Inside
+    the first step too, the named effect is judged without the refits from the starting
+    constants its refit above the noise would otherwise get."""
     messages: list[str] = []
     result = close_loop(report_model("average"),
                         campaign("coulomb_friction=167", "asymmetric_damping=560"),
@@ -54,3 +56,5 @@ def test_past_its_budget_the_loop_names_one_effect_and_says_why_it_stopped():
     assert "no further effect tried" in result.description
     assert any(m.startswith("loop: work budget spent") for m in messages)
     assert not any("starts near it" in m or "finer finite differences" in m for m in messages)
+    assert "refits from the starting constants skipped" in result.description
+    assert not any(m.endswith("from the starting constants") for m in messages)
