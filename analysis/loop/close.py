@@ -105,19 +105,16 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
     work = Budget.starting_now(budget)
     short: list[str] = []  # what the loop left undone once its budget was spent
 
-    def stop(what: str) -> None:
-        progress(f"loop: work budget spent ({work.used() / 1e9:.2f} G RK4 steps): "
-                 f"{what}")
-        short.append(what)
-
     def spent(what: str) -> bool:
-        """Inside a step: True where the budget is spent, and `what` is then left undone
-        (said once)."""
+        """True where the budget is spent, and `what` is then left undone (said once)."""
         if not work.exhausted():
             return False
         if what not in short:
-            stop(what)
+            progress(f"loop: work budget spent ({work.used() / 1e9:.2f} G RK4 steps): "
+                     f"{what}")
+            short.append(what)
         return True
+
     start = Hypothesis(model)
     prior_h = Hypothesis(prior) if prior is not None else None
     # δ and ε free with the rest: a base fit that absorbed an effect moved them too (a
@@ -132,8 +129,7 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         diag = diagnose_fit(fit, runs)
         if diag.residual_over_noise <= NOISE_LEVEL and diag.white:
             break
-        if (steps or rebased) and work.exhausted():
-            stop("no further effect tried")
+        if (steps or rebased) and spent("no further effect tried"):
             break
         # the first name is also sought at the constants identification gave (see
         # `_name`), and only the first may be equation error's weak one (`Naming.weak`):
@@ -183,8 +179,8 @@ def close_loop(model: IsolatorModel, runs: Sequence[LoopRun], max_effects: int =
         fit, lower = again, again.rss < GAIN * fit.rss
         if not lower:
             break
-    if fit.residual_over_noise > NOISE_LEVEL and work.exhausted():
-        stop("the final fit's search for a lower valley stopped")
+    if fit.residual_over_noise > NOISE_LEVEL:
+        spent("the final fit's search for a lower valley stopped")
     if steps and not (judged and fit is judged[0] and list(fit.names) == judged[1]):
         # each effect judged once more against the restarted fit, a lone one too: the
         # restarts can reach, with the effect, the valley the model without it has. Not
