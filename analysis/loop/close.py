@@ -294,7 +294,7 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         # judge's checks, held-out runs included, still decide
         high = diag.residual_over_noise > UNEXPLAINED_LEVEL
         to_try = naming.weak() if high and identified is not None else ()
-        if high and identified is None and faint:
+        if high and faint:  # (a later step's: `close_loop` settles the fit first)
             # after a step, equation error's two best however little they lower BIC, each
             # kept only where its refit leaves no structure to call unexplained: past an
             # effect whose library shape is not the data's, any column cuts the shape's
@@ -431,8 +431,7 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
     if freed is not None:
         refits.append((s, c, cand_h, sizes, freed))
         cf = freed
-    left = min(f.residual_over_noise for *_, f in refits)
-    if reach is not None and left > reach:
+    if reach is not None and (left := min(f.residual_over_noise for *_, f in refits)) > reach:
         return None, [{"candidate": c.name, "reason": (
             f"not named by equation error, and refitted it leaves {left:.2f} x noise "
             f"(> {reach:g})")}], None, cf

@@ -99,8 +99,7 @@ class Naming:
         sensor noise in x while it barely shows there (a 3.3 % one-sided stiffness on an
         unseen campaign: BIC fall 4.5 on 339 rows, 11.0 x noise by output error, at
         1.00 x with it)."""
-        best = max(self.first, key=lambda n: (self.first[n], n), default=None)
-        return (best,) if best is not None and self.first[best] > 0.0 else ()
+        return tuple(n for n in self.faint(1) if self.first[n] > 0.0)
 
     def faint(self, k: int) -> tuple[str, ...]:
         """The `k` candidates whose columns lowered BIC most at the first step, whether
@@ -108,7 +107,7 @@ class Naming:
         fall can sit under the price of a column, and the order is all equation error
         has to say (an unseen 3.5 % hardening spring beside a friction, at 2.3 x the
         rig's noise: the cubic's −3.6 was the best, a one-sided damping's −5.3)."""
-        return tuple(sorted(self.first, key=lambda n: (-self.first[n], n))[:k])
+        return tuple(sorted(self.first, key=lambda n: (self.first[n], n), reverse=True)[:k])
 
 
 @dataclass(frozen=True)
