@@ -77,6 +77,7 @@ STAGES = (
     (r"run \w+: ", "identification: each run alone"),
     (r"loop: (refitting the base model|the model without)", "loop: base refit"),
     (r"loop: (equation error|residual .* trying equation)", "loop: naming"),
+    (r"loop: refitting with .* dead band, which the fit closed", "loop: dead band reopened"),
     (r"loop: refitting with", "loop: candidate refit"),
     (r"loop: (validating|is .* still needed)", "loop: validation"),
     (r"loop: the final fit stopped", "loop: final fit carried on"),

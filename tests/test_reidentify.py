@@ -18,7 +18,13 @@ import pytest
 from analysis.identify.regressors import campaign_column
 from analysis.identify.step_pulse import step_pulse_motion
 from analysis.loop.candidates import CANDIDATES
-from analysis.loop.reidentify import moving_data, with_candidate, with_sensor_gain
+from analysis.loop.reidentify import (
+    Reidentified,
+    _damping_kept,
+    moving_data,
+    with_candidate,
+    with_sensor_gain,
+)
 from analysis.model.isolator import Term
 from analysis.model.report_constants import report_model
 from analysis.simulate import simulate
@@ -122,3 +128,16 @@ def test_a_sensor_gain_is_identified_with_eq_10_from_a_far_start():
     for name in ("k1", "c1"):
         assert g[name] == pytest.approx(p[name], rel=0.02), name
     assert g["delta"] == pytest.approx(p["delta"], abs=2e-4)
+
+
+def test_a_drift_equation_error_found_none_of_keeps_no_limit():
+    """Equation error can put a drift at exactly zero (a faint name refitted on runs
+    with no drift in them). The limit at which a drift takes all of c1, c1/|c_T|, then
+    does not exist, and the model comes back as it is: dividing by the zero stopped
+    `analysis fit` with an internal error on an unseen Coulomb campaign (seed 112)."""
+    model = report_model("average").with_terms(
+        Term("thermal_damper", "c_T", 0.0, (0.8, TAU, 0.0)))
+    _, data = _runs(True)
+    found = Reidentified(model, 1.0, True)
+    assert _damping_kept(found, CANDIDATES["thermal_damping_drift"], "c_T", data, [], []) \
+        is found

@@ -413,7 +413,8 @@ def _refit_and_judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: D
     refit). `reach`: the residual over noise the refit must reach to be judged at all."""
     progress(f"loop: refitting with {c.name}")
     again = reidentify_candidates(fit.hypothesis, runs, [(s, c, cand_h)])
-    s, c, cand_h, sizes, cf = candidate_refit(fit, free, runs, s, c, cand_h, again.get(c.name))
+    s, c, cand_h, sizes, cf = candidate_refit(fit, free, runs, s, c, cand_h, again.get(c.name),
+                                              prior, progress)
     # the dead band and stop velocity freed first (`with_stop_freed`): where that reaches
     # the noise, the refits from the starting constants are not needed. An unseen
     # one-sided damping (501) refitted to 1.22 x noise with ε held, and to 1.00 x with it

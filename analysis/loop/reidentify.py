@@ -256,6 +256,8 @@ def _damping_kept(r: Reidentified, c: Candidate, param: str, runs: Moving,
     (cooling in 4.1 s, measured θ at most 0.29 K) refitted from the limit at c1/|c_T|
     (0.41 K) reached 1.4 x noise, from none or from 0.8 K 54–68 x."""
     p = r.model.parameters()
+    if p[param] == 0.0:
+        return r  # equation error found no drift (a faint name tried): no limit to put
     heating, tau, theta_max = r.model.term(param).shape
     limit = p["c1"] / abs(p[param])
     if 0.0 < theta_max <= limit:
