@@ -1,13 +1,14 @@
-"""Two of the final fit's restarts (`polish.restarted`): a named dry friction exchanged
-with Eq 10's c2 tanh(βż), and every constant of Eq 10 from the prior where the fit holds
-some of them. Each is a start only: the refit from it is kept where it ends lower."""
+"""Three of the final fit's restarts (`polish.restarted`): a named dry friction exchanged
+with Eq 10's c2 tanh(βż), every constant of Eq 10 from the prior where the fit holds
+some of them, and the fit as it is with a held dead band or stop velocity freed. Each is
+a start only: the refit from it is kept where it ends lower."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from analysis.loop.polish import _from_prior, _roles_exchanged
+from analysis.loop.polish import _from_prior, _roles_exchanged, _stop_freed
 from analysis.loop.refit import Fit, Hypothesis
 from analysis.model.report_constants import report_model
 
@@ -70,3 +71,14 @@ def test_constants_the_fit_holds_are_taken_from_the_prior_in_a_start_of_their_ow
     free = list(_from_prior(_fit(absorbed, (*EQ10, "c3", "c3.v_s")), prior))
     assert all(s.model.parameters()["k2"] == prior.value("k2") for s, _, _ in free)
     assert len(free) == len(starts) - 1
+
+
+def test_a_held_dead_band_and_stop_velocity_are_freed_from_where_the_fit_stopped():
+    # unseen 5542's final fit: both held at the prior's, the effects fitted beside them
+    stopped = Hypothesis(report_model("average")).with_values({"c3": 2230.0})
+    held = tuple(n for n in EQ10 if n not in ("delta", "epsilon")) + ("c3",)
+    (start, names, cands), = list(_stop_freed(_fit(stopped, held)))
+    assert start is stopped  # from where it stopped, nothing moved
+    assert sorted(names) == ["delta", "epsilon"] and cands == {}
+    # with both free there is no start
+    assert list(_stop_freed(_fit(stopped, (*EQ10, "c3")))) == []

@@ -42,7 +42,12 @@ points (`restarted`), for valleys the loop's steps do not search:
   smooth one belongs (seed 105, an unseen friction of 1.75 kN built up over 5.6 mm/s:
   3.84 x the noise with c2 sharp (1/β 0.05 mm/s) and the friction smooth (v_s 35 mm/s);
   started with the two exchanged and δ, ε from the prior, 1.01, the friction 1.75 kN
-  and β 64.6 against the generator's 64.9 s/m).
+  and β 64.6 against the generator's 64.9 s/m);
+- the fit as it is with the dead band and stop velocity freed where it holds them
+  (`_stop_freed`): the restarts from the prior hold them at the prior's, and the data's
+  can lie elsewhere (seed 5542, an unseen one-sided damping + Coulomb friction: 16.5 x
+  the noise with δ and ε at the prior's 19.6 mm and 15.2 mm/s against the generator's
+  21.0 and 18.7; freed, 1.18, the friction 2233 N against 2237).
 """
 
 from __future__ import annotations
@@ -113,13 +118,14 @@ def restarted(fit: Fit, runs: Sequence[LoopRun], candidates: dict[str, Candidate
     added effect held at the library's own shape started at the library's other shapes
     with its shape constants freed, a hysteresis with its exponent freed too, α moved
     (`ALPHA_MOVES`) where the fit frees it, Eq 10's constants from `prior`
-    (`_from_prior`), and last a dry friction and c2 tanh(βż) exchanged
-    (`_roles_exchanged`); the first at the noise ends the search, and so does
+    (`_from_prior`), a dry friction and c2 tanh(βż) exchanged (`_roles_exchanged`),
+    and last the fit as it is with a held δ or ε freed (`_stop_freed`); the first at
+    the noise ends the search, and so does
     `enough()` (the loop's budget spent). A refit whose lone prediction of a run runs
     away is not kept."""
     starts = [*_other_shapes(fit.hypothesis, candidates),
               *_exponent_freed(fit.hypothesis, candidates), *_alpha_moved(fit),
-              *_from_prior(fit, prior), *_roles_exchanged(fit, prior)]
+              *_from_prior(fit, prior), *_roles_exchanged(fit, prior), *_stop_freed(fit)]
     if not starts:
         return fit
     progress(f"loop: the final fit stopped at {fit.residual_over_noise:.2f} x noise: "
@@ -210,6 +216,14 @@ def _from_prior(fit: Fit, prior: Hypothesis | None):
     for i, constants in enumerate(starts):
         if constants not in starts[:i]:
             yield fit.hypothesis.with_values(constants), [], {}
+
+
+def _stop_freed(fit: Fit):
+    """(start, the dead band and stop velocity to free, no other candidate): the fit as
+    it is with them freed, where it holds either."""
+    held = [n for n in STOP if n not in fit.names]
+    if held:
+        yield fit.hypothesis, held, {}
 
 
 def _roles_exchanged(fit: Fit, prior: Hypothesis | None):
