@@ -34,6 +34,7 @@ MIN_DROP = 0.02  # of the residual sum of squares
 # the effect is below what this sensor resolves (a 29 N/(m/s)² orifice term on a clean
 # campaign cut 1.39 -> 1.22 x noise, 0.66 σ)
 MIN_EXPLAINED = 1.0
+STANDS_ALONE_LEVEL = 1.3  # x noise: a look-alike's fit this near it may stand alone
 WITHOUT_NFEV = 15  # evaluations of the model without a candidate, refitted from its fit
 
 
@@ -92,18 +93,25 @@ def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
 
 
 def stands_alone(cf: Fit, without: Fit) -> bool:
-    """Whether the candidate fit `cf` is at the noise where the model without it, refitted
-    from its constants with every constant it correlates with free, stays far above
-    (twice the RMS residual): no constant of the model can take its place, however
-    correlated the two are along the valley they share.
+    """Whether the candidate fit `cf` is near the noise (`STANDS_ALONE_LEVEL`) where the
+    model without it, refitted from its constants with every constant it correlates with
+    free, stays far above (twice the RMS residual): no constant of the model can take
+    its place, however correlated the two are along the valley they share.
 
     A look-alike's refit trades with its twin, and the model without it refits to about
     its residual. An unseen 3.6 kN force offset (seed 1102) fitted at 1.02 x noise with
     the generator's offset and damping (3590 N, c1 7238 against 7226 N/(m/s)), both
     determined to 0.01 %, yet correlated 0.998 in that valley; without it the model
-    stayed at 641 x noise, and the offset was refused as c1's look-alike.
+    stayed at 641 x noise, and the offset was refused as c1's look-alike. Near the
+    noise rather than at it: a candidate's own refit still carries the valley the base
+    fit bent round the effects, and the final fit's search comes after the naming. An
+    unseen hardening spring beside a named Coulomb friction (seed 5048, 15 % of the
+    peak force each) refitted from 18.1 to 1.2 x noise, k1's look-alike at 0.991 with
+    k1 and k3 z³ gated alike by the dead band; without it, 18 x again. Refused, the loop
+    stopped at 18.1 x, "unexplained"; kept, the final fit reached 1.03 x, k3 and the
+    friction within 0.7 % of the generator's.
     """
-    return cf.residual_over_noise <= NOISE_LEVEL and without.rss > 4.0 * cf.rss
+    return cf.residual_over_noise <= STANDS_ALONE_LEVEL and without.rss > 4.0 * cf.rss
 
 
 def _rebase(fit: Fit, without: Fit, c: Candidate, reason: str = "") -> dict | None:
