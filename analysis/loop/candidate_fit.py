@@ -49,6 +49,7 @@ BASE_FREE = ("k1", "k2", "c1", "c2", "alpha", "beta")
 LINEAR = ("k1", "k2", "c1", "c2")
 SOFTENING = ("k2", "c2")  # Eq 10's tanh terms' coefficients
 NOISE_LEVEL = 1.05  # residual/noise at or below which the model is "at the noise"
+UNEXPLAINED_LEVEL = 1.3  # residual/noise above which structure is left unexplained
 ABSENT = 1e-6  # a nonlinear coefficient this fraction of its linear one: the term is absent
 STOP = ("delta", "epsilon")  # dead band and stop velocity: freed, or held, together
 SHAPE_CONSTANTS = ("alpha", "beta", *STOP)

@@ -62,6 +62,7 @@ from analysis.loop.budget import LOOP_BUDGET, Budget
 from analysis.loop.candidate_fit import (
     NOISE_LEVEL,
     STOP,
+    UNEXPLAINED_LEVEL,
     candidate_refit,
     constants_present,
     refit_from_start,
@@ -82,7 +83,6 @@ from analysis.loop.runs import LoopRun, loop_runs, run_errors
 from analysis.model.isolator import IsolatorModel
 
 MAX_TRIED = 2  # equation error's names refitted per step, in its order
-UNEXPLAINED_LEVEL = 1.3
 MAX_EFFECTS = 4
 RESTART_ROUNDS = 3  # the final fit's restarts, each from the last one's best
 

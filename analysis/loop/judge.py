@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from analysis.loop.candidate_fit import NOISE_LEVEL, SHAPE_CONSTANTS
+from analysis.loop.candidate_fit import NOISE_LEVEL, SHAPE_CONSTANTS, UNEXPLAINED_LEVEL
 from analysis.loop.candidates import CANDIDATES, Candidate
 from analysis.loop.evidence import Diagnosis
 from analysis.loop.refit import Fit, Hypothesis, Score, refit_free
@@ -34,7 +34,6 @@ MIN_DROP = 0.02  # of the residual sum of squares
 # the effect is below what this sensor resolves (a 29 N/(m/s)² orifice term on a clean
 # campaign cut 1.39 -> 1.22 x noise, 0.66 σ)
 MIN_EXPLAINED = 1.0
-STANDS_ALONE_LEVEL = 1.3  # x noise: a look-alike's fit this near it may stand alone
 WITHOUT_NFEV = 15  # evaluations of the model without a candidate, refitted from its fit
 
 
@@ -93,7 +92,7 @@ def judge(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosis,
 
 
 def stands_alone(cf: Fit, without: Fit) -> bool:
-    """Whether the candidate fit `cf` is near the noise (`STANDS_ALONE_LEVEL`) where the
+    """Whether the candidate fit `cf` is near the noise (`UNEXPLAINED_LEVEL`) where the
     model without it, refitted from its constants with every constant it correlates with
     free, stays far above (twice the RMS residual): no constant of the model can take
     its place, however correlated the two are along the valley they share.
@@ -111,7 +110,7 @@ def stands_alone(cf: Fit, without: Fit) -> bool:
     stopped at 18.1 x, "unexplained"; kept, the final fit reached 1.03 x, k3 and the
     friction within 0.7 % of the generator's.
     """
-    return cf.residual_over_noise <= STANDS_ALONE_LEVEL and without.rss > 4.0 * cf.rss
+    return cf.residual_over_noise <= UNEXPLAINED_LEVEL and without.rss > 4.0 * cf.rss
 
 
 def _rebase(fit: Fit, without: Fit, c: Candidate, reason: str = "") -> dict | None:
