@@ -11,9 +11,9 @@ Each step:
    where output error's cuts let a look-alike win. Where it names nothing and the
    residual is above 1.3 x noise, its best is refitted all the same at the first
    step, and after it the candidate output error's score test predicts takes the
-   residual to 1.3 x alone; at a later one the fit is first searched for a lower valley as the final
-   fit is (`_settled`), and, still above 1.3 x, its two best are refitted, each kept
-   only where it reaches 1.3 x;
+   residual to 1.3 x alone; at a later one the fit is first searched for a lower
+   valley as the final fit is (`_settled`), and, still above 1.3 x, its two best are
+   refitted, each kept only where it reaches 1.3 x;
 3. refit the named candidate by output error from several starts (`candidate_fit`)
    — appendix A's solution with its column, the model identified again by equation
    error with the candidate in it, α, β and δ searched (`reidentify`), and where
@@ -294,12 +294,13 @@ def _one_step(fit: Fit, free: list[str], runs: Sequence[LoopRun], diag: Diagnosi
         # structure equation error's twice-differentiated x hides (`Naming.weak`), and the
         # judge's checks, held-out runs included, still decide
         high = diag.residual_over_noise > UNEXPLAINED_LEVEL
-        to_try = naming.weak() if high and identified is not None else ()
-        # and output error's own evidence: the candidate its score test predicts takes
-        # the residual to 1.3 x noise alone (`_predicted_to_explain`)
-        scored = (_predicted_to_explain(fit, data, naming, diag, to_try)
-                  if high and identified is not None else {})
-        to_try += tuple(scored)
+        to_try, scored = (), {}
+        if high and identified is not None:
+            # and after it output error's own evidence: the candidate its score test
+            # predicts takes the residual to 1.3 x noise alone (`_predicted_to_explain`)
+            to_try = naming.weak()
+            scored = _predicted_to_explain(fit, data, naming, diag, to_try)
+            to_try += tuple(scored)
         if high and faint:  # (a later step's: `close_loop` settles the fit first)
             # after a step, equation error's two best however little they lower BIC, each
             # kept only where its refit leaves no structure to call unexplained: past an
