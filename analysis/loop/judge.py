@@ -163,8 +163,9 @@ def look_alike(fit: Fit, name: str, before: Fit | None = None) -> tuple[str, flo
     j = fit.names.index(name)
     ignored = (own_parameters(fit, name) - {name}) | {_taken_over(fit, name)}
     if before is not None:
+        was = dict(zip(before.names, before.values))
         ignored |= {n for n, v in zip(fit.names, fit.values)
-                    if n in before.names and abs(v) < NIL * abs(before.param(n)[0])}
+                    if abs(v) < NIL * abs(was.get(n, 0.0))}
     loose = ~(fit.std < np.abs(fit.values)) | np.array([n in ignored for n in fit.names])
     corr = np.nan_to_num(np.where(loose, 0.0, np.abs(fit.correlation[j])), nan=0.0)
     corr[j] = 0.0
